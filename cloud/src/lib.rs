@@ -1,0 +1,14 @@
+//! Point clouds shared by the edge and the station.
+//!
+//! Everything here is pure computation on in-memory data, except [`formats`], whose parsers work on
+//! byte slices and whose thin `read_*`/`write_*` wrappers are the only functions that touch files.
+
+pub mod alignment;
+pub mod formats;
+pub mod kdtree;
+pub mod point_cloud;
+pub mod se3;
+pub mod trajectory;
+pub mod voxel;
+
+pub use point_cloud::{Channels, PointCloud};

@@ -1,0 +1,113 @@
+//! Every message survives protobuf encoding with every field set, and poses convert losslessly.
+
+use nalgebra::{Isometry3, Vector3};
+use prost::Message;
+use proto::*;
+
+fn pose(i: f64) -> Pose {
+    Pose::from(&Isometry3::new(Vector3::new(i, -2.0 * i, 0.5 + i), Vector3::new(0.1 * i, -0.2, 0.3)))
+}
+
+fn cloud() -> CompressedCloud {
+    CompressedCloud { data: vec![1u8, 2, 3, 255].into(), points: 4 }
+}
+
+fn round_trip<M: Message + Default + PartialEq + std::fmt::Debug>(m: &M) {
+    let bytes = m.encode_to_vec();
+    assert_eq!(&M::decode(bytes.as_slice()).unwrap(), m);
+}
+
+#[test]
+fn keyframe_round_trips() {
+    round_trip(&Keyframe {
+        fleet: "alpha".into(),
+        robot: 2,
+        seq: 123_456_789_012,
+        stamp: Some(Timestamp { sec: 1_700_000_000, nanosec: 999_999_999 }),
+        odom_pose: Some(pose(1.0)),
+        scan_context: Some(ScanContext {
+            rings: 2,
+            sectors: 3,
+            max_range: 80.0,
+            cells: vec![0.0, 1.5, 2.0, 0.0, 3.25, 9.0],
+        }),
+        cloud: Some(cloud()),
+    });
+    // The descriptor is optional: absent must stay absent, not become an empty one.
+    round_trip(&Keyframe { scan_context: None, ..Default::default() });
+}
+
+#[test]
+fn pose_graph_update_round_trips() {
+    round_trip(&PoseGraphUpdate {
+        fleet: "alpha".into(),
+        robot: 1,
+        revision: 9,
+        poses: (0..5).map(|s| KeyframePose { seq: s, pose: Some(pose(s as f64)) }).collect(),
+        loops: vec![LoopEdge { from_seq: 4, to_seq: 0, relative: Some(pose(0.5)), score: 0.93 }],
+    });
+}
+
+#[test]
+fn global_map_round_trips() {
+    round_trip(&GlobalMap {
+        fleet: "alpha".into(),
+        revision: 3,
+        reference_robot: 1,
+        robots: vec![
+            RobotPlacement {
+                robot: 1,
+                transform: Some(Pose::identity()),
+                confidence: 12.5,
+                status: MergeStatus::Merged as i32,
+                keyframes: 40,
+            },
+            RobotPlacement {
+                robot: 2,
+                transform: Some(pose(3.0)),
+                confidence: 0.0,
+                status: MergeStatus::Unmerged as i32,
+                keyframes: 17,
+            },
+        ],
+        edges: vec![MergeEdge { robot_a: 1, robot_b: 2, transform: Some(pose(2.0)), confidence: 12.5, inliers: 311 }],
+        cloud: Some(cloud()),
+        stamp: Some(Timestamp::from_secs_f64(42.25)),
+    });
+}
+
+#[test]
+fn station_status_and_request_round_trip() {
+    round_trip(&StationStatus {
+        fleet: "alpha".into(),
+        robots: vec![1, 2, 8],
+        keyframes: 1234,
+        merge_queue_depth: 1,
+        last_merge_ms: 183.5,
+        global_map_revision: 7,
+        malformed_payloads: 3,
+        stamp: Some(Timestamp::now()),
+    });
+    round_trip(&KeyframeRequest { seqs: vec![0, 5, 6, 7, u64::MAX] });
+}
+
+#[test]
+fn poses_convert_losslessly_through_the_wire() {
+    for i in 0..50 {
+        let f = i as f64;
+        let iso = Isometry3::new(
+            Vector3::new(f * 13.7 - 300.0, (f * 0.37).sin() * 1e4, -f),
+            Vector3::new((f * 0.9).sin() * 3.0, (f * 1.3).cos(), (f * 0.21).sin() * 0.5),
+        );
+        let wire = Pose::decode(Pose::from(&iso).encode_to_vec().as_slice()).unwrap();
+        assert_eq!(Isometry3::try_from(&wire).unwrap(), iso);
+    }
+}
+
+#[test]
+fn garbage_does_not_decode_as_a_keyframe() {
+    // A length prefix far beyond the buffer must be an error, not a panic or a huge allocation.
+    let hostile = [0x3a, 0xff, 0xff, 0xff, 0xff, 0x0f, 0x01];
+    assert!(Keyframe::decode(&hostile[..]).is_err());
+    assert!(GlobalMap::decode(&[0xff; 16][..]).is_err());
+}
