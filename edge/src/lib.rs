@@ -1,1 +1,5 @@
 //! The robot side of EMR-FLOAM: scan sources (simulator and recordings), odometry, keyframes.
+
+pub mod recording;
+pub mod sim;
+pub mod source;

@@ -4,14 +4,20 @@ mod bench;
 
 use std::path::PathBuf;
 
-use anyhow::Result;
-use clap::{Parser, Subcommand};
+use anyhow::{Context, Result};
+use clap::builder::{PossibleValue, PossibleValuesParser};
+use clap::{Parser, Subcommand, ValueEnum};
+use edge::recording::{self, RecordingOptions};
+use edge::sim::{self, Scenario, SensorKind, SimConfig, Simulator};
+use edge::source::SourceSpec;
+use indicatif::{ProgressBar, ProgressStyle};
 
 /// The robot (edge) side of EMR-FLOAM multi-robot LiDAR SLAM.
 ///
 /// Each robot runs one `emr-edge`: it turns LiDAR scans into odometry, closes its own loops and
-/// streams compressed keyframes to the central station over Zenoh. Today it offers the benchmarks;
-/// the scan sources, odometry and the networked service arrive with the next releases.
+/// streams compressed keyframes to the central station over Zenoh. Scans come from a source: the
+/// built-in simulator (`sim:SCENARIO:ROBOT`) or a recording (a directory of .bin/.pcd/.ply scans, a
+/// ROS 1 .bag, an .mcap file). The networked service arrives with a later release.
 #[derive(Parser, Debug)]
 #[command(name = "emr-edge", version, about, long_about)]
 struct Cli {
@@ -26,6 +32,85 @@ enum Command {
         #[command(subcommand)]
         what: BenchCommand,
     },
+    /// Simulate one robot's LiDAR in a built-in scenario and write the sweeps in the KITTI layout:
+    /// OUT/velodyne/NNNNNN.bin (raw, motion-distorted x y z intensity), OUT/poses.txt (ground truth
+    /// at each sweep's end, first pose identity) and OUT/times.txt (sweep starts, first 0).
+    Sim(SimArgs),
+    /// Convert any source to the KITTI layout: OUT/velodyne/NNNNNN.bin (x y z intensity, float32)
+    /// and OUT/times.txt (sweep starts relative to the first, seconds); for `sim:` sources also
+    /// OUT/poses.txt (ground truth).
+    Convert(ConvertArgs),
+}
+
+/// Arguments of `emr-edge convert`.
+#[derive(clap::Args, Debug)]
+struct ConvertArgs {
+    /// The source: a directory of scans, a .bag or .mcap file, or sim:SCENARIO:ROBOT.
+    input: SourceSpec,
+    /// Output directory (created if missing; must not hold scans already).
+    #[arg(long)]
+    out: PathBuf,
+    /// Topic of sensor_msgs/PointCloud2 to read from a bag or MCAP file [default: the only one].
+    #[arg(long)]
+    topic: Option<String>,
+    /// Convert at most this many scans.
+    #[arg(long)]
+    frames: Option<usize>,
+}
+
+/// Arguments of `emr-edge sim`.
+#[derive(clap::Args, Debug)]
+struct SimArgs {
+    /// Scenario to simulate.
+    #[arg(long, value_parser = scenario_values())]
+    scenario: String,
+    /// Robot to simulate: 1 is the scenario's first robot (robot ids on the wire start at 1 too).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    robot: u32,
+    /// Output directory for the KITTI layout (created if missing).
+    #[arg(long, required_unless_present = "svg")]
+    out: Option<PathBuf>,
+    /// Seed of the range noise and dropouts; the same seed gives bit-identical sweeps.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Sweeps to write [default: the whole scenario; beyond it the robot stays parked].
+    #[arg(long)]
+    frames: Option<usize>,
+    /// LiDAR model.
+    #[arg(long, value_enum, default_value_t = SensorArg::Vlp16)]
+    sensor: SensorArg,
+    /// Standard deviation of the Gaussian range noise, metres.
+    #[arg(long, default_value_t = 0.01)]
+    noise: f64,
+    /// Probability that a return is lost.
+    #[arg(long, default_value_t = 0.01)]
+    dropout: f64,
+    /// Also draw the world and every robot's path, top-down, into this SVG file.
+    #[arg(long)]
+    svg: Option<PathBuf>,
+}
+
+/// The LiDAR models on the command line.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum SensorArg {
+    /// Velodyne VLP-16: 16 beams, -15..+15 deg, 1800 columns, 100 m.
+    Vlp16,
+    /// HDL-64E-like: 64 beams, -24.9..+2 deg, 2083 columns, 120 m.
+    Hdl64,
+}
+
+impl From<SensorArg> for SensorKind {
+    fn from(s: SensorArg) -> Self {
+        match s {
+            SensorArg::Vlp16 => SensorKind::Vlp16,
+            SensorArg::Hdl64 => SensorKind::Hdl64,
+        }
+    }
+}
+
+/// The scenario names with their descriptions, so `--help` lists them.
+fn scenario_values() -> PossibleValuesParser {
+    PossibleValuesParser::new(sim::CATALOG.iter().map(|s| PossibleValue::new(s.name).help(s.description)))
 }
 
 #[derive(Subcommand, Debug)]
@@ -43,6 +128,18 @@ enum BenchCommand {
         #[arg(long, default_value_t = 20)]
         repeat: usize,
     },
+    /// LiDAR simulator: sweeps and rays per second on one core and on all cores.
+    Sim {
+        /// LiDAR model [default: both].
+        #[arg(long, value_enum)]
+        sensor: Option<SensorArg>,
+        /// Scenario whose robot 0 is simulated.
+        #[arg(long, default_value = "warehouse-small", value_parser = scenario_values())]
+        scenario: String,
+        /// Sweeps timed per figure, spread over the sequence.
+        #[arg(long, default_value_t = 50)]
+        frames: usize,
+    },
 }
 
 fn main() -> Result<()> {
@@ -55,6 +152,104 @@ fn main() -> Result<()> {
             let report = bench::codec(&data, step, repeat)?;
             println!("{report}");
         }
+        Command::Bench { what: BenchCommand::Sim { sensor, scenario, frames } } => {
+            let scenario = load_scenario(&scenario)?;
+            let sensors = sensor.map_or(SensorKind::ALL.to_vec(), |s| vec![s.into()]);
+            for kind in sensors {
+                println!("{}", sim::bench::run(&scenario, kind, frames)?);
+            }
+        }
+        Command::Sim(args) => simulate(args)?,
+        Command::Convert(args) => convert(args)?,
     }
     Ok(())
+}
+
+/// Builds a scenario and reports its size and build time (the BVH build dominates).
+fn load_scenario(name: &str) -> Result<Scenario> {
+    let start = std::time::Instant::now();
+    let scenario = Scenario::by_name(name)?;
+    let world = scenario.world();
+    eprintln!(
+        "{name}: {} objects, {} BVH nodes, built in {:.0} ms; {} robots, {} frames",
+        world.objects().len(),
+        world.bvh_nodes(),
+        start.elapsed().as_secs_f64() * 1e3,
+        scenario.robots().len(),
+        scenario.frames()
+    );
+    Ok(scenario)
+}
+
+/// `emr-edge sim`: the SVG if asked, then the KITTI sequence if asked.
+fn simulate(args: SimArgs) -> Result<()> {
+    let scenario = load_scenario(&args.scenario)?;
+    if let Some(path) = &args.svg {
+        std::fs::write(path, sim::svg::render(&scenario))
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!("wrote {}", path.display());
+    }
+    let Some(out) = &args.out else { return Ok(()) };
+    let config = SimConfig {
+        seed: args.seed,
+        sensor: SensorKind::from(args.sensor).model(),
+        range_noise: args.noise,
+        dropout: args.dropout,
+    };
+    write_simulation(&Simulator::new(scenario, args.robot as usize - 1, config)?, args.frames, out)
+}
+
+/// Writes a simulated robot's sweeps in the KITTI layout, with a progress bar.
+fn write_simulation(simulator: &Simulator, frames: Option<usize>, out: &std::path::Path) -> Result<()> {
+    let frames = frames.unwrap_or(simulator.frames());
+    let bar = progress_bar(Some(frames), "sweeps");
+    let written = sim::write_kitti(simulator, out, frames, |done| bar.set_position(done as u64))?;
+    bar.finish_and_clear();
+    println!(
+        "wrote {} sweeps ({:.0} points each on average) to {}",
+        written.frames,
+        written.points as f64 / written.frames.max(1) as f64,
+        out.display()
+    );
+    Ok(())
+}
+
+/// `emr-edge convert`.
+fn convert(args: ConvertArgs) -> Result<()> {
+    match &args.input {
+        SourceSpec::Sim { scenario, robot } => {
+            let simulator = Simulator::new(load_scenario(scenario)?, *robot as usize - 1, SimConfig::default())?;
+            write_simulation(&simulator, args.frames, &args.out)
+        }
+        SourceSpec::Recording(path) => {
+            let options = RecordingOptions { topic: args.topic.clone(), ..RecordingOptions::default() };
+            let rec = recording::open(path, &options)?;
+            let bar = progress_bar(None, "scans");
+            let scans = rec.take(args.frames.unwrap_or(usize::MAX));
+            let summary = recording::convert(scans, &args.out, |_| bar.inc(1))?;
+            bar.finish_and_clear();
+            println!(
+                "wrote {} scans ({} points, {} invalid points dropped) to {}",
+                summary.scans,
+                summary.points,
+                summary.dropped,
+                args.out.display()
+            );
+            Ok(())
+        }
+    }
+}
+
+/// A progress bar on stderr; indicatif draws nothing when stderr is not a terminal.
+fn progress_bar(len: Option<usize>, unit: &str) -> ProgressBar {
+    let bar = len.map_or_else(ProgressBar::new_spinner, |n| ProgressBar::new(n as u64));
+    let template = if len.is_some() {
+        format!("{{bar:40}} {{pos}}/{{len}} {unit} [{{elapsed}} < {{eta}}, {{per_sec}}]")
+    } else {
+        format!("{{spinner}} {{pos}} {unit} [{{elapsed}}, {{per_sec}}]")
+    };
+    if let Ok(style) = ProgressStyle::with_template(&template) {
+        bar.set_style(style);
+    }
+    bar
 }
