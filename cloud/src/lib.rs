@@ -4,6 +4,7 @@
 //! byte slices and whose thin `read_*`/`write_*` wrappers are the only functions that touch files.
 
 pub mod alignment;
+pub mod eigen3;
 pub mod formats;
 pub mod kdtree;
 pub mod point_cloud;

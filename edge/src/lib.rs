@@ -1,5 +1,6 @@
 //! The robot side of EMR-FLOAM: scan sources (simulator and recordings), odometry, keyframes.
 
+pub mod odometry;
 pub mod recording;
 pub mod sim;
 pub mod source;

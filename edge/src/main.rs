@@ -7,9 +7,12 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::builder::{PossibleValue, PossibleValuesParser};
 use clap::{Parser, Subcommand, ValueEnum};
-use edge::recording::{self, RecordingOptions};
+use cloud::trajectory::Trajectory;
+use edge::odometry::stats::RunStats;
+use edge::odometry::{Odometry, OdometryConfig};
+use edge::recording::{self, RecordingOptions, RingModel, Spin, TimeModel};
 use edge::sim::{self, Scenario, SensorKind, SimConfig, Simulator};
-use edge::source::SourceSpec;
+use edge::source::{Source, SourceSpec};
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// The robot (edge) side of EMR-FLOAM multi-robot LiDAR SLAM.
@@ -40,19 +43,83 @@ enum Command {
     /// and OUT/times.txt (sweep starts relative to the first, seconds); for `sim:` sources also
     /// OUT/poses.txt (ground truth).
     Convert(ConvertArgs),
+    /// Run F-LOAM odometry on a source as fast as possible and write OUT/poses_kitti.txt (one line
+    /// per scan, sensor frame at the sweep end, first pose identity), OUT/poses_tum.txt (the same
+    /// with timestamps) and OUT/stats.json (timing, features, degenerate frames, peak memory); for
+    /// `sim:` sources also OUT/poses_gt_kitti.txt and the ATE against it.
+    Odometry(OdometryArgs),
+    /// Compare an estimated trajectory with ground truth (KITTI or TUM files): ATE RMSE with and
+    /// without SE(3) alignment, and RPE (translation %, deg/100 m) KITTI style.
+    Eval(EvalArgs),
+}
+
+/// Arguments of `emr-edge odometry`.
+#[derive(clap::Args, Debug)]
+struct OdometryArgs {
+    #[command(flatten)]
+    source: SourceArgs,
+    /// Output directory (created if missing).
+    #[arg(long)]
+    out: PathBuf,
+    /// Odometry configuration (TOML; `emr-edge odometry --print-config` shows every key and its
+    /// default). Keys left out keep the preset's values.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Preset the configuration starts from: indoor (warehouses, ranges under ~40 m) or outdoor.
+    #[arg(long, value_enum, default_value_t = Preset::Indoor)]
+    preset: Preset,
+    /// Turn motion compensation off: for recordings published already compensated (KITTI's).
+    #[arg(long)]
+    no_deskew: bool,
+    /// Stop after this many scans.
+    #[arg(long)]
+    max_frames: Option<usize>,
+    /// Print the configuration that would be used (TOML) and exit.
+    #[arg(long)]
+    print_config: bool,
+}
+
+/// Configuration presets.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum Preset {
+    /// Finer maps, 40 m crop.
+    Indoor,
+    /// F-LOAM's KITTI resolutions, 100 m crop.
+    Outdoor,
+}
+
+/// Arguments of `emr-edge eval`.
+#[derive(clap::Args, Debug)]
+struct EvalArgs {
+    /// Ground-truth trajectory (KITTI: 12 numbers per line; TUM: stamp tx ty tz qx qy qz qw).
+    #[arg(long)]
+    gt: PathBuf,
+    /// Estimated trajectory, same formats.
+    #[arg(long)]
+    est: PathBuf,
+    /// TUM files: largest stamp difference (s) for two poses to be paired.
+    #[arg(long, default_value_t = 0.02)]
+    max_dt: f64,
+}
+
+/// Where scans come from (shared by the commands that read a source).
+#[derive(clap::Args, Debug)]
+struct SourceArgs {
+    /// The source: a directory of scans, a .bag or .mcap file, or sim:SCENARIO:ROBOT.
+    input: SourceSpec,
+    /// Topic of sensor_msgs/PointCloud2 in a bag or MCAP file [default: the only one].
+    #[arg(long)]
+    topic: Option<String>,
 }
 
 /// Arguments of `emr-edge convert`.
 #[derive(clap::Args, Debug)]
 struct ConvertArgs {
-    /// The source: a directory of scans, a .bag or .mcap file, or sim:SCENARIO:ROBOT.
-    input: SourceSpec,
+    #[command(flatten)]
+    source: SourceArgs,
     /// Output directory (created if missing; must not hold scans already).
     #[arg(long)]
     out: PathBuf,
-    /// Topic of sensor_msgs/PointCloud2 to read from a bag or MCAP file [default: the only one].
-    #[arg(long)]
-    topic: Option<String>,
     /// Convert at most this many scans.
     #[arg(long)]
     frames: Option<usize>,
@@ -161,6 +228,8 @@ fn main() -> Result<()> {
         }
         Command::Sim(args) => simulate(args)?,
         Command::Convert(args) => convert(args)?,
+        Command::Odometry(args) => odometry(args)?,
+        Command::Eval(args) => evaluate(&args)?,
     }
     Ok(())
 }
@@ -216,13 +285,13 @@ fn write_simulation(simulator: &Simulator, frames: Option<usize>, out: &std::pat
 
 /// `emr-edge convert`.
 fn convert(args: ConvertArgs) -> Result<()> {
-    match &args.input {
+    match &args.source.input {
         SourceSpec::Sim { scenario, robot } => {
             let simulator = Simulator::new(load_scenario(scenario)?, *robot as usize - 1, SimConfig::default())?;
             write_simulation(&simulator, args.frames, &args.out)
         }
         SourceSpec::Recording(path) => {
-            let options = RecordingOptions { topic: args.topic.clone(), ..RecordingOptions::default() };
+            let options = RecordingOptions { topic: args.source.topic.clone(), ..RecordingOptions::default() };
             let rec = recording::open(path, &options)?;
             let bar = progress_bar(None, "scans");
             let scans = rec.take(args.frames.unwrap_or(usize::MAX));
@@ -238,6 +307,148 @@ fn convert(args: ConvertArgs) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// The odometry configuration: preset, then the file's keys, then flags.
+fn odometry_config(args: &OdometryArgs) -> Result<OdometryConfig> {
+    let mut config = match args.preset {
+        Preset::Indoor => OdometryConfig::indoor(),
+        Preset::Outdoor => OdometryConfig::outdoor(),
+    };
+    if let Some(path) = &args.config {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+        // Overlay the file on the preset: serialise the preset, merge the file's tables into it.
+        let mut base: toml::Table = toml::from_str(&toml::to_string(&config)?)?;
+        let overlay: toml::Table =
+            toml::from_str(&text).with_context(|| format!("{}: invalid TOML", path.display()))?;
+        merge(&mut base, overlay);
+        config = toml::Value::Table(base)
+            .try_into()
+            .with_context(|| format!("{}: invalid configuration", path.display()))?;
+    }
+    if args.no_deskew {
+        config.deskew = false;
+    }
+    Ok(config)
+}
+
+/// Recursively overlays `overlay` onto `base`.
+fn merge(base: &mut toml::Table, overlay: toml::Table) {
+    for (key, value) in overlay {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
+            (_, v) => {
+                base.insert(key, v);
+            }
+        }
+    }
+}
+
+/// `emr-edge odometry`.
+fn odometry(args: OdometryArgs) -> Result<()> {
+    let config = odometry_config(&args)?;
+    if args.print_config {
+        print!("{}", toml::to_string(&config)?);
+        return Ok(());
+    }
+    let options = RecordingOptions {
+        topic: args.source.topic.clone(),
+        rings: RingModel::Auto,
+        times: TimeModel::Azimuth { period_s: config.scan_period, spin: Spin::Detect },
+        ..RecordingOptions::default()
+    };
+    let source = Source::open(&args.source.input, args.max_frames, &SimConfig::default(), &options)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    let bar = progress_bar(source.len, "scans");
+    let mut odometry = Odometry::new(config)?;
+    let mut stats = RunStats::default();
+    let (mut est, mut gt) = (Trajectory { poses: vec![], stamps: Some(vec![]) }, Trajectory::default());
+    for scan in source {
+        let scan = match scan {
+            Ok(s) => s,
+            Err(e) if !e.is_fatal() => {
+                tracing::warn!("skipped: {e}");
+                continue;
+            }
+            Err(e) => {
+                bar.finish_and_clear();
+                tracing::error!("{e}; writing the {} scans before it", est.poses.len());
+                break;
+            }
+        };
+        let start = std::time::Instant::now();
+        let frame = odometry.register(&scan.cloud).with_context(|| format!("scan {}", scan.index))?;
+        stats.add(&frame, start.elapsed().as_secs_f64() * 1e3);
+        est.poses.push(frame.pose);
+        est.stamps.get_or_insert_default().push(scan.stamp);
+        gt.poses.extend(scan.ground_truth);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let summary = stats.summary();
+    let mut json = serde_json::to_value(&summary)?;
+    json["peak_rss_mb"] = serde_json::json!(peak_rss_mb());
+    if gt.poses.len() == est.poses.len() && !gt.poses.is_empty() {
+        let first = gt.poses[0].inverse();
+        gt.poses.iter_mut().for_each(|p| *p = first * *p);
+        write(&args.out.join("poses_gt_kitti.txt"), &gt.to_kitti())?;
+        let unaligned = cloud::trajectory::ate(&gt.poses, &est.poses, false)?;
+        // A straight path leaves the rotation about it undetermined: no aligned figure then.
+        let aligned = cloud::trajectory::ate(&gt.poses, &est.poses, true).ok().map(|a| a.rmse);
+        json["ate_rmse_m"] = serde_json::json!({"unaligned": unaligned.rmse, "aligned": aligned});
+        json["path_length_m"] = serde_json::json!(gt.length());
+    }
+    write(&args.out.join("poses_kitti.txt"), &est.to_kitti())?;
+    write(&args.out.join("poses_tum.txt"), &est.to_tum())?;
+    write(&args.out.join("stats.json"), &serde_json::to_string_pretty(&json)?)?;
+    println!("{}", serde_json::to_string_pretty(&json)?);
+    Ok(())
+}
+
+/// `emr-edge eval`.
+fn evaluate(args: &EvalArgs) -> Result<()> {
+    let read = |p: &PathBuf| -> Result<Trajectory> {
+        let text = std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
+        Trajectory::parse(&text).with_context(|| format!("{}", p.display()))
+    };
+    let (gt, est) = (read(&args.gt)?, read(&args.est)?);
+    let (g, e) = cloud::trajectory::pair(&gt, &est, args.max_dt)?;
+    let unaligned = cloud::trajectory::ate(&g, &e, false)?;
+    let aligned = cloud::trajectory::ate(&g, &e, true);
+    let length = Trajectory { poses: g.clone(), stamps: None }.length();
+    let rpe = cloud::trajectory::rpe(&g, &e, &cloud::trajectory::segment_lengths(length));
+    println!("poses paired        {}", unaligned.pairs);
+    println!("path length         {length:.3} m");
+    println!("ATE RMSE unaligned  {:.4} m (mean {:.4}, max {:.4})", unaligned.rmse, unaligned.mean, unaligned.max);
+    match aligned {
+        Ok(a) => println!("ATE RMSE SE(3)      {:.4} m (mean {:.4}, max {:.4})", a.rmse, a.mean, a.max),
+        // A straight path leaves the rotation about it undetermined.
+        Err(e) => println!("ATE RMSE SE(3)      not computed: {e}"),
+    }
+    match rpe {
+        Ok(r) => println!(
+            "RPE                 {:.3} % translation, {:.3} deg/100 m over {} segments of {:?} m",
+            r.translation_percent,
+            r.rotation_deg_per_100m,
+            r.segments,
+            r.lengths.iter().map(|l| (l * 10.0).round() / 10.0).collect::<Vec<_>>()
+        ),
+        Err(e) => println!("RPE                 not computed: {e}"),
+    }
+    Ok(())
+}
+
+/// Writes a text file, naming it in the error.
+fn write(path: &std::path::Path, text: &str) -> Result<()> {
+    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// The process's peak resident memory (Linux `VmHWM`), MB; `None` elsewhere.
+fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
 }
 
 /// A progress bar on stderr; indicatif draws nothing when stderr is not a terminal.

@@ -101,7 +101,7 @@ pub struct Source {
 
 enum Inner {
     Sim { sim: Box<Simulator>, next: usize },
-    Recording(recording::Recording),
+    Recording(Box<recording::Recording>),
 }
 
 impl Source {
@@ -131,7 +131,7 @@ impl Source {
                     (Some(f), Some(n)) => Some(f.min(n)),
                     (f, n) => f.or(n),
                 };
-                Ok(Source { inner: Inner::Recording(rec), len, limit: frames, given: 0 })
+                Ok(Source { inner: Inner::Recording(Box::new(rec)), len, limit: frames, given: 0 })
             }
         }
     }

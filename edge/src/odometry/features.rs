@@ -1,0 +1,256 @@
+//! Feature extraction (F-LOAM section III-A): per-ring smoothness, sectors, edge and plane points.
+
+use cloud::PointCloud;
+use nalgebra::Point3;
+
+use super::FeatureConfig;
+
+/// A feature point, still in the sensor frame at its own measurement time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Feature {
+    /// Position in the sensor frame at the point's measurement time.
+    pub point: Point3<f32>,
+    /// Fraction of the sweep at which the point was measured, 0 = sweep start, 1 = sweep end.
+    pub phase: f32,
+    /// Local smoothness σ (eq. 1).
+    pub smoothness: f32,
+}
+
+/// The features of one scan.
+#[derive(Clone, Debug, Default)]
+pub struct Features {
+    /// Sharp points, matched to lines of the edge map.
+    pub edges: Vec<Feature>,
+    /// Flat points, matched to planes of the plane map.
+    pub planes: Vec<Feature>,
+}
+
+/// One ring's points in firing order, with what feature selection needs per point.
+struct Ring {
+    points: Vec<Point3<f32>>,
+    phases: Vec<f32>,
+    smoothness: Vec<f32>,
+    /// Points excluded from selection: unreliable (occlusion boundary, grazing beam) or suppressed.
+    blocked: Vec<bool>,
+}
+
+/// Splits a scan into rings, each ordered by measurement time, dropping points outside the range crop.
+fn rings(scan: &PointCloud, ring_ids: &[u16], times: &[f32], period: f32, config: &FeatureConfig) -> Vec<Ring> {
+    let rings_n = ring_ids.iter().copied().max().map_or(0, |m| m as usize + 1);
+    let mut order: Vec<Vec<usize>> = vec![Vec::new(); rings_n];
+    for (i, p) in scan.points.iter().enumerate() {
+        let r = p.coords.norm();
+        if r >= config.min_range && r <= config.max_range {
+            order[ring_ids[i] as usize].push(i);
+        }
+    }
+    order
+        .into_iter()
+        .map(|mut idx| {
+            idx.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
+            Ring {
+                points: idx.iter().map(|&i| scan.points[i]).collect(),
+                phases: idx.iter().map(|&i| (times[i] / period).clamp(0.0, 1.0)).collect(),
+                smoothness: vec![0.0; idx.len()],
+                blocked: vec![false; idx.len()],
+            }
+        })
+        .collect()
+}
+
+/// Eq. 1: σ_i = ‖Σ_{j ∈ S} (p_j − p_i)‖² over the `k` neighbours on each side along the ring.
+fn compute_smoothness(ring: &mut Ring, k: usize) {
+    let p = &ring.points;
+    for i in k..p.len().saturating_sub(k) {
+        let sum = (1..=k).fold(nalgebra::Vector3::zeros(), |acc, j| acc + (p[i - j] - p[i]) + (p[i + j] - p[i]));
+        ring.smoothness[i] = sum.norm_squared();
+    }
+}
+
+/// LOAM's reliability checks: points on the far side of an occlusion boundary (they vanish as the
+/// viewpoint moves) and points on surfaces nearly parallel to the beam (their spacing explodes).
+fn block_unreliable(ring: &mut Ring, k: usize, config: &FeatureConfig) {
+    let p = &ring.points;
+    let n = p.len();
+    for i in k..n.saturating_sub(k + 1) {
+        let (d0, d1) = (p[i].coords.norm(), p[i + 1].coords.norm());
+        let gap = (p[i + 1] - p[i]).norm_squared();
+        if gap > config.occlusion_gap * config.occlusion_gap {
+            // Compare directions: a boundary only when the two beams are adjacent but depths differ.
+            let (near, far, far_is_next) = if d0 > d1 { (p[i + 1], p[i], false) } else { (p[i], p[i + 1], true) };
+            let (dn, df) = (near.coords.norm(), far.coords.norm());
+            let angular = (far.coords * (dn / df) - near.coords).norm() / dn;
+            if angular < config.occlusion_angle {
+                let range = if far_is_next { i + 1..=(i + k + 1).min(n - 1) } else { i.saturating_sub(k)..=i };
+                ring.blocked[range].iter_mut().for_each(|b| *b = true);
+                if !config.silhouette_edges {
+                    ring.blocked[if far_is_next { i } else { i + 1 }] = true;
+                }
+            }
+        }
+        let prev = (p[i] - p[i - 1]).norm_squared();
+        let next = (p[i + 1] - p[i]).norm_squared();
+        let limit = config.parallel_beam_ratio * d0 * d0;
+        if prev > limit && next > limit {
+            ring.blocked[i] = true;
+        }
+    }
+}
+
+/// Per sector: the sharpest unblocked points above the edge threshold become edges (at most
+/// `max_edges_per_sector`, suppressing their neighbours); points below the plane threshold become planes.
+fn select(ring: &mut Ring, k: usize, config: &FeatureConfig, out: &mut Features) {
+    let n = ring.points.len();
+    if n < 2 * k + 1 {
+        return;
+    }
+    let (start, end) = (k, n - k);
+    let sectors = config.sectors.max(1);
+    for s in 0..sectors {
+        let lo = start + (end - start) * s / sectors;
+        let hi = start + (end - start) * (s + 1) / sectors;
+        // Edges: the sharpest first; only candidates above the threshold need sorting.
+        let mut candidates: Vec<usize> = (lo..hi).filter(|&i| ring.smoothness[i] > config.edge_threshold).collect();
+        candidates.sort_unstable_by(|&a, &b| ring.smoothness[b].total_cmp(&ring.smoothness[a]));
+        let mut edges = 0;
+        for &i in &candidates {
+            if edges >= config.max_edges_per_sector {
+                break;
+            }
+            if ring.blocked[i] {
+                continue;
+            }
+            out.edges.push(feature(ring, i));
+            edges += 1;
+            suppress_neighbours(ring, i, k, config.suppression_gap);
+        }
+        // Planes: every reliable point flatter than the threshold (thinned later by voxel).
+        for i in lo..hi {
+            if ring.smoothness[i] < config.plane_threshold && !ring.blocked[i] {
+                out.planes.push(feature(ring, i));
+            }
+        }
+    }
+}
+
+fn feature(ring: &Ring, i: usize) -> Feature {
+    Feature { point: ring.points[i], phase: ring.phases[i], smoothness: ring.smoothness[i] }
+}
+
+/// Blocks the `k` neighbours on each side of a chosen edge while the ring stays continuous, so one
+/// corner does not yield a cluster of edge features.
+fn suppress_neighbours(ring: &mut Ring, i: usize, k: usize, gap: f32) {
+    ring.blocked[i] = true;
+    let n = ring.points.len();
+    for j in i + 1..=(i + k).min(n - 1) {
+        if (ring.points[j] - ring.points[j - 1]).norm_squared() > gap * gap {
+            break;
+        }
+        ring.blocked[j] = true;
+    }
+    for j in (i.saturating_sub(k)..i).rev() {
+        if (ring.points[j + 1] - ring.points[j]).norm_squared() > gap * gap {
+            break;
+        }
+        ring.blocked[j] = true;
+    }
+}
+
+/// Missing per-point channels that feature extraction needs.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum FeatureError {
+    /// The scan has no ring channel (sources derive one when the recording lacks it).
+    #[error("scan has no ring channel")]
+    NoRing,
+    /// The scan has no per-point time channel (sources derive it from azimuth when missing).
+    #[error("scan has no per-point time channel")]
+    NoTime,
+}
+
+/// Extracts edge and plane features from a scan with ring and time channels; `period` is the sweep
+/// duration in seconds, which turns point times into sweep phases for distortion compensation.
+pub fn extract(scan: &PointCloud, period: f32, config: &FeatureConfig) -> Result<Features, FeatureError> {
+    let ring_ids = scan.ring.as_deref().ok_or(FeatureError::NoRing)?;
+    let times = scan.time.as_deref().ok_or(FeatureError::NoTime)?;
+    let k = config.neighbours;
+    let mut out = Features::default();
+    for mut ring in rings(scan, ring_ids, times, period, config) {
+        compute_smoothness(&mut ring, k);
+        block_unreliable(&mut ring, k, config);
+        select(&mut ring, k, config, &mut out);
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::odometry::FeatureConfig;
+
+    /// One ring sweeping a square room: walls are flat, the four corners are edges.
+    fn square_room_ring(n: usize, half: f32) -> PointCloud {
+        let mut c = PointCloud::with_capacity(n, cloud::Channels { intensity: false, ring: true, time: true });
+        for i in 0..n {
+            let a = i as f32 / n as f32 * std::f32::consts::TAU;
+            let (dx, dy) = (a.cos(), a.sin());
+            let t = half / dx.abs().max(dy.abs());
+            c.points.push(Point3::new(dx * t, dy * t, 0.0));
+            c.ring.as_mut().unwrap().push(0);
+            c.time.as_mut().unwrap().push(i as f32 / n as f32 * 0.1);
+        }
+        c
+    }
+
+    #[test]
+    fn corners_are_edges_and_walls_are_planes() {
+        let scan = square_room_ring(1800, 5.0);
+        let f = extract(&scan, 0.1, &FeatureConfig::default()).unwrap();
+        assert!(!f.edges.is_empty());
+        // Every edge lies near one of the corners (±5, ±5) at 45°, 135°, ...
+        for e in &f.edges {
+            let corner_dist = [(5.0, 5.0), (-5.0, 5.0), (-5.0, -5.0), (5.0, -5.0)]
+                .iter()
+                .map(|&(x, y)| ((e.point.x - x).powi(2) + (e.point.y - y).powi(2)).sqrt())
+                .fold(f32::INFINITY, f32::min);
+            assert!(corner_dist < 0.3, "edge at {:?} is {corner_dist} m from a corner", e.point);
+        }
+        // No more than one edge per corner: neighbours are suppressed.
+        assert!(f.edges.len() <= 4, "{} edges", f.edges.len());
+        // Planes: many, all on a wall (|x| or |y| = 5), none at a corner.
+        assert!(f.planes.len() > 1000);
+        for p in &f.planes {
+            assert!((p.point.x.abs() - 5.0).abs() < 1e-4 || (p.point.y.abs() - 5.0).abs() < 1e-4);
+            assert!((p.point.x.abs() - p.point.y.abs()).abs() > 0.05);
+        }
+        // Phases follow the firing time.
+        assert!(f.planes.iter().all(|p| (0.0..=1.0).contains(&p.phase)));
+    }
+
+    #[test]
+    fn far_side_of_an_occlusion_is_not_an_edge() {
+        // A ring across a wall at 10 m with a pole at 3 m in front: the wall points right behind the
+        // pole's silhouette are occluded, they must not be chosen; the pole's own border may be.
+        let n = 400;
+        let mut c = PointCloud::with_capacity(n, cloud::Channels { intensity: false, ring: true, time: true });
+        for i in 0..n {
+            let a = (i as f32 - n as f32 / 2.0) * 0.003;
+            let d = if a.abs() < 0.05 { 3.0 } else { 10.0 };
+            c.points.push(Point3::new(d * a.cos(), d * a.sin(), 0.0));
+            c.ring.as_mut().unwrap().push(0);
+            c.time.as_mut().unwrap().push(i as f32 * 1e-4);
+        }
+        let f = extract(&c, 0.1, &FeatureConfig::default()).unwrap();
+        for e in &f.edges {
+            assert!(e.point.coords.norm() < 5.0, "occluded wall point {:?} became an edge", e.point);
+        }
+    }
+
+    #[test]
+    fn missing_channels_are_errors() {
+        let mut scan = square_room_ring(100, 5.0);
+        scan.time = None;
+        assert_eq!(extract(&scan, 0.1, &FeatureConfig::default()).unwrap_err(), FeatureError::NoTime);
+        scan.ring = None;
+        assert_eq!(extract(&scan, 0.1, &FeatureConfig::default()).unwrap_err(), FeatureError::NoRing);
+    }
+}

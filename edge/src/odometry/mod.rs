@@ -1,0 +1,429 @@
+//! F-LOAM odometry (Wang et al., IROS 2021, section III) with the paper's two-stage distortion
+//! compensation. One call per scan, in [`Odometry::register`]:
+//!
+//! 1. features: per-ring smoothness (eq. 1), 6 sectors, edges and planes ([`features`]);
+//! 2. stage 1: constant-velocity motion from the last frame (eq. 2) moves each feature to the sweep
+//!    end by its own timestamp (eq. 3) ([`deskew`]);
+//! 3. pose: scan-to-local-map point-to-line / point-to-plane matching (eq. 4) ([`solver`]);
+//! 4. stage 2: the distortion is recomputed with the estimated motion and the features are corrected
+//!    again before they enter the map;
+//! 5. local map: edge and plane voxel maps cropped around the robot, k-d trees ([`local_map`]);
+//! 6. keyframes every N metres or M degrees, carrying the deskewed, downsampled cloud.
+//!
+//! Poses are those of the sensor at the END of each sweep, in the odometry frame (the sensor frame at
+//! the end of the first sweep).
+
+pub mod deskew;
+pub mod features;
+pub mod local_map;
+pub mod solver;
+pub mod stats;
+
+use cloud::PointCloud;
+use nalgebra::{Isometry3, Point3};
+use serde::{Deserialize, Serialize};
+
+use deskew::SweepMotion;
+use features::{FeatureError, Features};
+use local_map::FeatureMap;
+
+/// Feature extraction parameters (F-LOAM's reference values unless noted).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct FeatureConfig {
+    /// Points closer than this (m) are dropped: the robot itself, dust. Default 0.5 m indoor, 2 m outdoor.
+    pub min_range: f32,
+    /// Points farther than this (m) are dropped. Default 100 m.
+    pub max_range: f32,
+    /// Neighbours on each side for the smoothness (eq. 1). Default 5.
+    pub neighbours: usize,
+    /// Sectors per ring, so features spread around the sensor. Default 6.
+    pub sectors: usize,
+    /// Smoothness above which a point may become an edge. Default 0.1 (m²).
+    pub edge_threshold: f32,
+    /// Smoothness below which a point is a plane candidate. Default 0.1 (m²).
+    pub plane_threshold: f32,
+    /// Most edges per sector. Default 20.
+    pub max_edges_per_sector: usize,
+    /// Two consecutive points farther apart than this (m) are an occlusion candidate. Default 0.3 m.
+    pub occlusion_gap: f32,
+    /// ... and an occlusion boundary when their beams are closer than this (rad). Default 0.1.
+    pub occlusion_angle: f32,
+    /// A point whose distance to both ring neighbours exceeds this × range² lies on a surface nearly
+    /// parallel to the beam. Default 0.0002 (LOAM).
+    pub parallel_beam_ratio: f32,
+    /// Neighbours of a chosen edge closer than this (m) along the ring are suppressed. Default 0.2 m.
+    pub suppression_gap: f32,
+    /// Whether the near side of an occlusion boundary (an object's silhouette) may be an edge.
+    /// Silhouettes of round objects move with the viewpoint. Default true (LOAM).
+    pub silhouette_edges: bool,
+    /// Edge features are thinned to one per voxel of this size (m), as F-LOAM downsamples its
+    /// input to the map resolution. Default 0.2 m indoor, 0.4 m outdoor.
+    pub edge_voxel: f32,
+    /// Plane features are thinned to one per voxel of this size (m). Default 0.4 m indoor, 0.8 m outdoor.
+    pub plane_voxel: f32,
+}
+
+impl Default for FeatureConfig {
+    fn default() -> Self {
+        FeatureConfig {
+            min_range: 0.5,
+            max_range: 100.0,
+            neighbours: 5,
+            sectors: 6,
+            edge_threshold: 0.1,
+            plane_threshold: 0.1,
+            max_edges_per_sector: 20,
+            occlusion_gap: 0.3,
+            occlusion_angle: 0.1,
+            parallel_beam_ratio: 0.0002,
+            suppression_gap: 0.2,
+            silhouette_edges: true,
+            edge_voxel: 0.2,
+            plane_voxel: 0.4,
+        }
+    }
+}
+
+/// One local feature map's parameters.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MapConfig {
+    /// Voxel edge (m). Defaults: edges 0.2 m indoor / 0.4 m outdoor, planes 0.4 / 0.8 m (F-LOAM).
+    pub voxel_size: f32,
+    /// Most points kept per voxel. Default 3.
+    pub points_per_voxel: usize,
+    /// A new point closer than this (m) to a point of its voxel is not added. Default voxel/4.
+    pub min_point_distance: f32,
+    /// Voxels farther than this (m) from the robot are dropped. Default 40 m indoor, 100 m outdoor.
+    pub radius: f32,
+}
+
+/// Pose-estimation parameters.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct SolverConfig {
+    /// Map neighbours per feature. Default 5 (F-LOAM).
+    pub neighbours: usize,
+    /// All neighbours must lie within this distance (m). Default 1 m (F-LOAM).
+    pub max_neighbour_distance: f32,
+    /// A neighbourhood is a line when λ_max > ratio × λ_mid. Default 3 (F-LOAM).
+    pub line_ratio: f64,
+    /// A neighbourhood is a plane when all its points lie within this (m) of the fit. Default 0.05 m
+    /// (F-LOAM: 0.2 m, which lets floor-and-box blends through).
+    pub max_plane_deviation: f64,
+    /// ... and when it spreads in two directions: λ_mid ≥ this × λ_max. Default 0.05.
+    pub plane_spread: f64,
+    /// ... and when it is flat: λ_min ≤ this × (λ_min + λ_mid + λ_max). Default 0.01.
+    pub max_surface_variation: f64,
+    /// Expected spread of a clean plane fit (m), about the range noise: a fit scattering σ off its
+    /// plane is weighted n² / (n² + σ²). Default 0.01 m.
+    pub plane_noise: f64,
+    /// Huber kernel width on residuals (m). Default 0.1 (F-LOAM).
+    pub huber: f64,
+    /// Edge weight w₁ = σ / (σ + s): sharper edges count more. Default s = 0.1 (the edge threshold).
+    pub edge_weight_scale: f32,
+    /// Plane weight w₂ = s / (σ + s): flatter points count more. Default s = 0.1.
+    pub plane_weight_scale: f32,
+    /// Correspondence searches at most; each is followed by `inner_iterations` Gauss-Newton steps on
+    /// the same lines and planes (F-LOAM: 2 searches, up to 4 solver steps). Default 4.
+    pub max_iterations: usize,
+    /// Gauss-Newton steps per correspondence search. Default 3.
+    pub inner_iterations: usize,
+    /// Stop when the update's translation is below this (m). Default 1e-4.
+    pub convergence_translation: f64,
+    /// ... and its rotation below this (rad). Default 1e-5.
+    pub convergence_rotation: f64,
+    /// Fewer correspondences than this: keep the prediction. Default 30.
+    pub min_matches: usize,
+    /// An eigen-direction of the normal matrix is degenerate when its eigenvalue is below this ×
+    /// the sum of weights. Default 0.002: a direction seen by under ~0.2 % of the residuals (a
+    /// featureless corridor's axis gives ~0; at 0.02 healthy warehouse scans tripped it and the
+    /// kept prior let z drift).
+    pub degeneracy_ratio: f64,
+}
+
+impl Default for SolverConfig {
+    fn default() -> Self {
+        SolverConfig {
+            neighbours: 5,
+            max_neighbour_distance: 1.0,
+            line_ratio: 3.0,
+            max_plane_deviation: 0.05,
+            plane_spread: 0.05,
+            max_surface_variation: 0.01,
+            plane_noise: 0.01,
+            huber: 0.1,
+            edge_weight_scale: 0.1,
+            plane_weight_scale: 0.1,
+            max_iterations: 4,
+            inner_iterations: 3,
+            convergence_translation: 1e-4,
+            convergence_rotation: 1e-5,
+            min_matches: 30,
+            degeneracy_ratio: 0.002,
+        }
+    }
+}
+
+/// When a scan becomes a keyframe.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct KeyframeConfig {
+    /// Travelled distance since the last keyframe (m). Default 1 m.
+    pub distance: f64,
+    /// Rotation since the last keyframe (deg). Default 15°.
+    pub angle_deg: f64,
+    /// The keyframe cloud is downsampled to this voxel (m). Default 0.1 m.
+    pub voxel: f32,
+}
+
+impl Default for KeyframeConfig {
+    fn default() -> Self {
+        KeyframeConfig { distance: 1.0, angle_deg: 15.0, voxel: 0.1 }
+    }
+}
+
+/// Everything the odometry needs; [`OdometryConfig::indoor`] and [`OdometryConfig::outdoor`] are the
+/// documented presets (indoor is the default).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct OdometryConfig {
+    /// Sweep duration (s): point times divided by it give sweep phases. Default 0.1 s (10 Hz).
+    pub scan_period: f32,
+    /// Feature extraction.
+    pub features: FeatureConfig,
+    /// The edge map.
+    pub edge_map: MapConfig,
+    /// The plane map.
+    pub plane_map: MapConfig,
+    /// Pose estimation.
+    pub solver: SolverConfig,
+    /// Keyframe selection.
+    pub keyframes: KeyframeConfig,
+    /// Distortion compensation on (both stages). Off only to measure what it buys. Default on.
+    pub deskew: bool,
+}
+
+impl Default for OdometryConfig {
+    fn default() -> Self {
+        Self::indoor()
+    }
+}
+
+impl OdometryConfig {
+    /// Indoor preset (warehouses, offices: ranges under ~40 m): finer maps, as F-LOAM's indoor launch.
+    pub fn indoor() -> Self {
+        OdometryConfig {
+            scan_period: 0.1,
+            features: FeatureConfig::default(),
+            edge_map: MapConfig { voxel_size: 0.2, points_per_voxel: 3, min_point_distance: 0.05, radius: 40.0 },
+            plane_map: MapConfig { voxel_size: 0.4, points_per_voxel: 3, min_point_distance: 0.1, radius: 40.0 },
+            solver: SolverConfig::default(),
+            keyframes: KeyframeConfig::default(),
+            deskew: true,
+        }
+    }
+
+    /// Outdoor preset (streets, campuses): F-LOAM's KITTI map resolution, longer crop.
+    pub fn outdoor() -> Self {
+        OdometryConfig {
+            features: FeatureConfig { min_range: 2.0, edge_voxel: 0.4, plane_voxel: 0.8, ..FeatureConfig::default() },
+            edge_map: MapConfig { voxel_size: 0.4, points_per_voxel: 3, min_point_distance: 0.1, radius: 100.0 },
+            plane_map: MapConfig { voxel_size: 0.8, points_per_voxel: 3, min_point_distance: 0.2, radius: 100.0 },
+            keyframes: KeyframeConfig { distance: 2.0, angle_deg: 15.0, voxel: 0.2 },
+            ..Self::indoor()
+        }
+    }
+}
+
+/// A keyframe: the deskewed, downsampled scan at its pose.
+#[derive(Clone, Debug)]
+pub struct Keyframe {
+    /// 0, 1, 2, ... in order.
+    pub seq: u64,
+    /// Index of the scan that made it.
+    pub frame: usize,
+    /// Sensor pose at the sweep end, odometry frame.
+    pub pose: Isometry3<f64>,
+    /// Motion-compensated cloud in the sweep-end sensor frame, voxel-downsampled.
+    pub cloud: PointCloud,
+}
+
+/// What one scan produced.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// Sensor pose at the sweep end in the odometry frame.
+    pub pose: Isometry3<f64>,
+    /// Edge features extracted.
+    pub edges: usize,
+    /// Plane features extracted (after thinning).
+    pub planes: usize,
+    /// Gauss-Newton iterations.
+    pub iterations: usize,
+    /// True when the pose problem was ill-conditioned and the motion prior was kept along some directions.
+    pub degenerate: bool,
+    /// The keyframe this scan made, if any.
+    pub keyframe: Option<Keyframe>,
+    /// Where the time went.
+    pub timings: FrameTimings,
+}
+
+/// Wall time of the pipeline's stages for one scan, milliseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct FrameTimings {
+    /// Feature extraction and thinning.
+    pub features: f64,
+    /// Distortion compensation and pose estimation.
+    pub registration: f64,
+    /// Map insertion, crop and k-d tree rebuild, keyframe.
+    pub map: f64,
+}
+
+/// Why a scan could not be registered.
+#[derive(Debug, thiserror::Error)]
+pub enum OdometryError {
+    /// The scan lacks a channel the odometry needs.
+    #[error(transparent)]
+    Features(#[from] FeatureError),
+    /// A configuration value is unusable.
+    #[error("invalid configuration: {0}")]
+    Config(String),
+}
+
+/// The F-LOAM odometry state of one robot.
+pub struct Odometry {
+    config: OdometryConfig,
+    frames: usize,
+    pose: Isometry3<f64>,
+    motion: SweepMotion,
+    edge_map: FeatureMap,
+    plane_map: FeatureMap,
+    last_keyframe: Option<Isometry3<f64>>,
+    keyframes: u64,
+}
+
+impl Odometry {
+    /// A fresh odometry; the first scan defines the odometry frame.
+    pub fn new(config: OdometryConfig) -> Result<Self, OdometryError> {
+        let positive = [
+            ("scan_period", config.scan_period),
+            ("edge_map.voxel_size", config.edge_map.voxel_size),
+            ("plane_map.voxel_size", config.plane_map.voxel_size),
+            ("features.edge_voxel", config.features.edge_voxel),
+            ("features.plane_voxel", config.features.plane_voxel),
+            ("keyframes.voxel", config.keyframes.voxel),
+        ];
+        if let Some((name, v)) = positive.iter().find(|(_, v)| !(*v > 0.0 && v.is_finite())) {
+            return Err(OdometryError::Config(format!("{name} must be positive, got {v}")));
+        }
+        Ok(Odometry {
+            edge_map: FeatureMap::new(config.edge_map.clone()),
+            plane_map: FeatureMap::new(config.plane_map.clone()),
+            config,
+            frames: 0,
+            pose: Isometry3::identity(),
+            motion: SweepMotion::zero(),
+            last_keyframe: None,
+            keyframes: 0,
+        })
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &OdometryConfig {
+        &self.config
+    }
+
+    /// Registers one scan (with ring and per-point time channels) and returns its pose.
+    pub fn register(&mut self, scan: &PointCloud) -> Result<Frame, OdometryError> {
+        let clock = std::time::Instant::now();
+        let lap = |since: &mut std::time::Instant| {
+            let ms = since.elapsed().as_secs_f64() * 1e3;
+            *since = std::time::Instant::now();
+            ms
+        };
+        let mut since = clock;
+        let raw = self.extract(scan)?;
+        let features_ms = lap(&mut since);
+        let motion = if self.config.deskew { self.motion } else { SweepMotion::zero() };
+        // Stage 1: deskew with the predicted (previous) motion, predict the pose with it (eq. 2).
+        let edges = deskew::compensate(&raw.edges, &motion);
+        let planes = deskew::compensate(&raw.planes, &motion);
+        let predicted = self.pose * cloud::se3::exp(&self.motion.0);
+        let estimate = if self.frames == 0 {
+            solver::Estimate {
+                pose: Isometry3::identity(),
+                iterations: 0,
+                edge_matches: 0,
+                plane_matches: 0,
+                degenerate_directions: 0,
+                min_eigen_ratio: 1.0,
+            }
+        } else {
+            solver::estimate(&edges, &planes, &self.edge_map, &self.plane_map, predicted, &self.config.solver)
+        };
+        let registration_ms = lap(&mut since);
+        let previous = self.pose;
+        self.pose = estimate.pose;
+        self.motion = if self.frames == 0 { SweepMotion::zero() } else { SweepMotion::between(&previous, &self.pose) };
+        // Stage 2: the estimated motion corrects the features before they enter the map.
+        let corrected = if self.config.deskew { self.motion } else { SweepMotion::zero() };
+        self.edge_map.insert(raw.edges.iter().map(|f| corrected.compensate(&f.point, f.phase)), &self.pose);
+        self.plane_map.insert(raw.planes.iter().map(|f| corrected.compensate(&f.point, f.phase)), &self.pose);
+        let centre = Point3::from(self.pose.translation.vector);
+        self.edge_map.crop_and_rebuild(&centre);
+        self.plane_map.crop_and_rebuild(&centre);
+        let keyframe = self.keyframe(scan, &corrected);
+        self.frames += 1;
+        let timings = FrameTimings { features: features_ms, registration: registration_ms, map: lap(&mut since) };
+        Ok(Frame {
+            timings,
+            pose: self.pose,
+            edges: raw.edges.len(),
+            planes: raw.planes.len(),
+            iterations: estimate.iterations,
+            degenerate: estimate.degenerate_directions > 0,
+            keyframe,
+        })
+    }
+
+    /// Features of the raw scan, planes thinned to one per voxel (F-LOAM downsamples its surface points).
+    fn extract(&self, scan: &PointCloud) -> Result<Features, OdometryError> {
+        let mut f = features::extract(scan, self.config.scan_period, &self.config.features)?;
+        f.edges = thin(&f.edges, self.config.features.edge_voxel);
+        f.planes = thin(&f.planes, self.config.features.plane_voxel);
+        Ok(f)
+    }
+
+    /// A keyframe when the robot moved or turned enough since the last one (the first scan always is).
+    fn keyframe(&mut self, scan: &PointCloud, motion: &SweepMotion) -> Option<Keyframe> {
+        let kc = &self.config.keyframes;
+        if let Some(last) = &self.last_keyframe {
+            let d = last.inverse() * self.pose;
+            if d.translation.vector.norm() < kc.distance && d.rotation.angle().to_degrees() < kc.angle_deg {
+                return None;
+            }
+        }
+        let times = scan.time.as_deref().unwrap_or(&[]);
+        let period = self.config.scan_period;
+        let mut deskewed = scan.clone();
+        if !motion.is_zero() {
+            let table = motion.table();
+            for (p, t) in deskewed.points.iter_mut().zip(times) {
+                *p = table.compensate(p, t / period);
+            }
+        }
+        let cloud = cloud::voxel::downsample(&deskewed, kc.voxel).unwrap_or(deskewed);
+        self.last_keyframe = Some(self.pose);
+        let seq = self.keyframes;
+        self.keyframes += 1;
+        Some(Keyframe { seq, frame: self.frames, pose: self.pose, cloud })
+    }
+}
+
+/// Keeps the first feature of each voxel: an even spread at a fraction of the cost.
+fn thin(features: &[features::Feature], voxel: f32) -> Vec<features::Feature> {
+    let inv = 1.0 / voxel;
+    let mut seen = rustc_hash::FxHashSet::default();
+    features.iter().filter(|f| seen.insert(cloud::voxel::VoxelKey::of(&f.point, inv))).copied().collect()
+}

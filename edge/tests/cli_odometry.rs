@@ -1,0 +1,75 @@
+//! `emr-edge odometry` and `emr-edge eval` as a user runs them.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn emr_edge(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_emr-edge")).args(args).output().expect("emr-edge runs")
+}
+
+fn kitti00() -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/kitti00"))
+}
+
+#[test]
+fn odometry_writes_poses_and_stats_for_every_scan() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let data = kitti00();
+    let (data, out_s) = (data.to_str().unwrap(), out.to_str().unwrap());
+    let run = emr_edge(&["odometry", data, "--out", out_s, "--preset", "outdoor", "--no-deskew", "--max-frames", "6"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    // Not a terminal: no progress bar, nothing on stderr.
+    assert!(run.stderr.is_empty(), "{}", String::from_utf8_lossy(&run.stderr));
+    let kitti = std::fs::read_to_string(out.join("poses_kitti.txt")).unwrap();
+    let tum = std::fs::read_to_string(out.join("poses_tum.txt")).unwrap();
+    assert_eq!(kitti.lines().count(), 6);
+    assert_eq!(tum.lines().count(), 6);
+    let first: Vec<f64> = kitti.lines().next().unwrap().split_whitespace().map(|v| v.parse().unwrap()).collect();
+    assert_eq!(first, vec![1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]);
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
+    assert_eq!(stats["frames"], 6);
+    assert!(stats["ms_per_frame"]["median"].as_f64().unwrap() > 0.0);
+    assert!(stats["peak_rss_mb"].as_f64().unwrap() > 1.0);
+    // The trajectory it wrote evaluates against the reference within 5 cm.
+    let gt = dir.path().join("gt.txt");
+    let reference = std::fs::read_to_string(kitti00().join("poses_velodyne.txt")).unwrap();
+    std::fs::write(&gt, reference.lines().take(6).collect::<Vec<_>>().join("\n")).unwrap();
+    let eval =
+        emr_edge(&["eval", "--gt", gt.to_str().unwrap(), "--est", out.join("poses_kitti.txt").to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&eval.stdout);
+    let ate: f64 = text
+        .lines()
+        .find(|l| l.starts_with("ATE RMSE unaligned"))
+        .unwrap()
+        .split_whitespace()
+        .nth(3)
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(ate < 0.05, "{text}");
+}
+
+#[test]
+fn eval_by_hand() {
+    // Truth: 0, 1, 2 m along x. Estimate: errors 0, 0.3 m (y) and 0.4 m (z): RMSE sqrt(0.25 / 3).
+    let dir = tempfile::tempdir().unwrap();
+    let row = |x: f64, y: f64, z: f64| format!("1 0 0 {x} 0 1 0 {y} 0 0 1 {z}\n");
+    std::fs::write(dir.path().join("gt.txt"), [row(0.0, 0.0, 0.0), row(1.0, 0.0, 0.0), row(2.0, 0.0, 0.0)].concat())
+        .unwrap();
+    std::fs::write(dir.path().join("est.txt"), [row(0.0, 0.0, 0.0), row(1.0, 0.3, 0.0), row(2.0, 0.0, 0.4)].concat())
+        .unwrap();
+    let gt = dir.path().join("gt.txt");
+    let est = dir.path().join("est.txt");
+    let run = emr_edge(&["eval", "--gt", gt.to_str().unwrap(), "--est", est.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(text.contains(&format!("ATE RMSE unaligned  {:.4} m", (0.25f64 / 3.0).sqrt())), "{text}");
+    // Unequal lengths without timestamps: a clear error naming the counts.
+    std::fs::write(dir.path().join("short.txt"), row(0.0, 0.0, 0.0)).unwrap();
+    let run =
+        emr_edge(&["eval", "--gt", gt.to_str().unwrap(), "--est", dir.path().join("short.txt").to_str().unwrap()]);
+    assert!(!run.status.success());
+    assert!(String::from_utf8_lossy(&run.stderr).contains("ground truth has 3 poses, estimate 1"));
+}
