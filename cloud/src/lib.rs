@@ -8,6 +8,7 @@ pub mod eigen3;
 pub mod formats;
 pub mod kdtree;
 pub mod point_cloud;
+pub mod registration;
 pub mod se3;
 pub mod trajectory;
 pub mod voxel;
