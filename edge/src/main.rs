@@ -207,6 +207,16 @@ enum BenchCommand {
         #[arg(long, default_value_t = 50)]
         frames: usize,
     },
+    /// Fine registration (GICP, VGICP): median time per registration on one thread and on all, and
+    /// the error against the reference pose, on DIR/{source,target}.ply and DIR/T_target_source.txt.
+    Gicp {
+        /// Directory of the cloud pair.
+        #[arg(long, default_value = "../shared/data/gicp_pair")]
+        data: PathBuf,
+        /// Timed runs per figure (the median is reported).
+        #[arg(long, default_value_t = 20)]
+        runs: usize,
+    },
 }
 
 fn main() -> Result<()> {
@@ -225,6 +235,9 @@ fn main() -> Result<()> {
             for kind in sensors {
                 println!("{}", sim::bench::run(&scenario, kind, frames)?);
             }
+        }
+        Command::Bench { what: BenchCommand::Gicp { data, runs } } => {
+            println!("{}", cloud::registration::bench::gicp(&data, runs)?);
         }
         Command::Sim(args) => simulate(args)?,
         Command::Convert(args) => convert(args)?,
@@ -362,6 +375,8 @@ fn odometry(args: OdometryArgs) -> Result<()> {
     let bar = progress_bar(source.len, "scans");
     let mut odometry = Odometry::new(config)?;
     let mut stats = RunStats::default();
+    let (mut rss_first, mut rss_half) = (None, None);
+    let half = source.len.map(|n| n / 2);
     let (mut est, mut gt) = (Trajectory { poses: vec![], stamps: Some(vec![]) }, Trajectory::default());
     for scan in source {
         let scan = match scan {
@@ -382,12 +397,20 @@ fn odometry(args: OdometryArgs) -> Result<()> {
         est.poses.push(frame.pose);
         est.stamps.get_or_insert_default().push(scan.stamp);
         gt.poses.extend(scan.ground_truth);
+        if est.poses.len() == 1 {
+            rss_first = rss_mb();
+        }
+        if Some(est.poses.len()) == half {
+            rss_half = rss_mb();
+        }
         bar.inc(1);
     }
     bar.finish_and_clear();
     let summary = stats.summary();
     let mut json = serde_json::to_value(&summary)?;
     json["peak_rss_mb"] = serde_json::json!(peak_rss_mb());
+    // Memory must stay flat over long runs: resident memory after the first scan and at the end.
+    json["rss_mb"] = serde_json::json!({"after_first_scan": rss_first, "half_way": rss_half, "end": rss_mb()});
     if gt.poses.len() == est.poses.len() && !gt.poses.is_empty() {
         let first = gt.poses[0].inverse();
         gt.poses.iter_mut().for_each(|p| *p = first * *p);
@@ -445,8 +468,17 @@ fn write(path: &std::path::Path, text: &str) -> Result<()> {
 
 /// The process's peak resident memory (Linux `VmHWM`), MB; `None` elsewhere.
 fn peak_rss_mb() -> Option<f64> {
+    proc_status_mb("VmHWM:")
+}
+
+/// The process's current resident memory (Linux `VmRSS`), MB; `None` elsewhere.
+fn rss_mb() -> Option<f64> {
+    proc_status_mb("VmRSS:")
+}
+
+fn proc_status_mb(field: &str) -> Option<f64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let line = status.lines().find(|l| l.starts_with(field))?;
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb / 1024.0)
 }

@@ -32,6 +32,9 @@ fn odometry_writes_poses_and_stats_for_every_scan() {
     assert_eq!(stats["frames"], 6);
     assert!(stats["ms_per_frame"]["median"].as_f64().unwrap() > 0.0);
     assert!(stats["peak_rss_mb"].as_f64().unwrap() > 1.0);
+    assert!(
+        stats["rss_mb"]["after_first_scan"].as_f64().unwrap() > 1.0 && stats["rss_mb"]["end"].as_f64().unwrap() > 1.0
+    );
     // The trajectory it wrote evaluates against the reference within 5 cm.
     let gt = dir.path().join("gt.txt");
     let reference = std::fs::read_to_string(kitti00().join("poses_velodyne.txt")).unwrap();

@@ -14,6 +14,8 @@ pub struct Feature {
     pub phase: f32,
     /// Local smoothness σ (eq. 1).
     pub smoothness: f32,
+    /// The ring (beam) that measured it.
+    pub ring: u16,
 }
 
 /// The features of one scan.
@@ -27,6 +29,7 @@ pub struct Features {
 
 /// One ring's points in firing order, with what feature selection needs per point.
 struct Ring {
+    id: u16,
     points: Vec<Point3<f32>>,
     phases: Vec<f32>,
     smoothness: Vec<f32>,
@@ -46,9 +49,11 @@ fn rings(scan: &PointCloud, ring_ids: &[u16], times: &[f32], period: f32, config
     }
     order
         .into_iter()
-        .map(|mut idx| {
+        .enumerate()
+        .map(|(id, mut idx)| {
             idx.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
             Ring {
+                id: id as u16,
                 points: idx.iter().map(|&i| scan.points[i]).collect(),
                 phases: idx.iter().map(|&i| (times[i] / period).clamp(0.0, 1.0)).collect(),
                 smoothness: vec![0.0; idx.len()],
@@ -134,7 +139,7 @@ fn select(ring: &mut Ring, k: usize, config: &FeatureConfig, out: &mut Features)
 }
 
 fn feature(ring: &Ring, i: usize) -> Feature {
-    Feature { point: ring.points[i], phase: ring.phases[i], smoothness: ring.smoothness[i] }
+    Feature { point: ring.points[i], phase: ring.phases[i], smoothness: ring.smoothness[i], ring: ring.id }
 }
 
 /// Blocks the `k` neighbours on each side of a chosen edge while the ring stays continuous, so one

@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 
 use deskew::SweepMotion;
 use features::{FeatureError, Features};
-use local_map::FeatureMap;
+use local_map::{FeatureMap, ScanLine};
 
 /// Feature extraction parameters (F-LOAM's reference values unless noted).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -97,6 +97,14 @@ pub struct MapConfig {
     pub min_point_distance: f32,
     /// Voxels farther than this (m) from the robot are dropped. Default 40 m indoor, 100 m outdoor.
     pub radius: f32,
+    /// Scans between full rebuilds of the map's search tree (points added in between are searched
+    /// through a small tree of their own). Default 10.
+    #[serde(default = "default_rebuild_every")]
+    pub rebuild_every: usize,
+}
+
+fn default_rebuild_every() -> usize {
+    10
 }
 
 /// Pose-estimation parameters.
@@ -109,6 +117,11 @@ pub struct SolverConfig {
     pub max_neighbour_distance: f32,
     /// A neighbourhood is a line when λ_max > ratio × λ_mid. Default 3 (F-LOAM).
     pub line_ratio: f64,
+    /// ... and when all its points lie within this (m) of the line. Default 0.05 m.
+    pub max_line_deviation: f64,
+    /// ... and when it rises at least this steeply (deg from the sensor's horizontal plane).
+    /// Default 0° (F-LOAM: every line); the indoor preset uses 60°, see [`OdometryConfig::indoor`].
+    pub min_line_elevation_deg: f64,
     /// A neighbourhood is a plane when all its points lie within this (m) of the fit. Default 0.05 m
     /// (F-LOAM: 0.2 m, which lets floor-and-box blends through).
     pub max_plane_deviation: f64,
@@ -137,9 +150,8 @@ pub struct SolverConfig {
     /// Fewer correspondences than this: keep the prediction. Default 30.
     pub min_matches: usize,
     /// An eigen-direction of the normal matrix is degenerate when its eigenvalue is below this ×
-    /// the sum of weights. Default 0.002: a direction seen by under ~0.2 % of the residuals (a
-    /// featureless corridor's axis gives ~0; at 0.02 healthy warehouse scans tripped it and the
-    /// kept prior let z drift).
+    /// the sum of weights. Default 1e-4: a featureless corridor's axis gives ~0, while at 0.02
+    /// healthy warehouse scans and at 0.002 campus roads tripped it and the kept prior drifted.
     pub degeneracy_ratio: f64,
 }
 
@@ -149,6 +161,8 @@ impl Default for SolverConfig {
             neighbours: 5,
             max_neighbour_distance: 1.0,
             line_ratio: 3.0,
+            max_line_deviation: 0.05,
+            min_line_elevation_deg: 0.0,
             max_plane_deviation: 0.05,
             plane_spread: 0.05,
             max_surface_variation: 0.01,
@@ -161,7 +175,7 @@ impl Default for SolverConfig {
             convergence_translation: 1e-4,
             convergence_rotation: 1e-5,
             min_matches: 30,
-            degeneracy_ratio: 0.002,
+            degeneracy_ratio: 1e-4,
         }
     }
 }
@@ -212,14 +226,30 @@ impl Default for OdometryConfig {
 }
 
 impl OdometryConfig {
-    /// Indoor preset (warehouses, offices: ranges under ~40 m): finer maps, as F-LOAM's indoor launch.
+    /// Indoor preset (warehouses, offices: ranges under ~40 m): finer maps, as F-LOAM's indoor launch,
+    /// and edge lines only when they rise 60° or more: indoors most shallow "lines" are floor-object
+    /// junctions and shelf fronts, which a spinning LiDAR places in height only to its beam spacing
+    /// (measured in the simulated warehouse: a −0.1°/scan pitch bias, gone with the filter; on the
+    /// campus the same filter starves the roads of constraints, so outdoors keeps every line).
     pub fn indoor() -> Self {
         OdometryConfig {
             scan_period: 0.1,
             features: FeatureConfig::default(),
-            edge_map: MapConfig { voxel_size: 0.2, points_per_voxel: 3, min_point_distance: 0.05, radius: 40.0 },
-            plane_map: MapConfig { voxel_size: 0.4, points_per_voxel: 3, min_point_distance: 0.1, radius: 40.0 },
-            solver: SolverConfig::default(),
+            edge_map: MapConfig {
+                voxel_size: 0.2,
+                points_per_voxel: 3,
+                min_point_distance: 0.05,
+                radius: 40.0,
+                rebuild_every: 10,
+            },
+            plane_map: MapConfig {
+                voxel_size: 0.4,
+                points_per_voxel: 3,
+                min_point_distance: 0.1,
+                radius: 40.0,
+                rebuild_every: 10,
+            },
+            solver: SolverConfig { min_line_elevation_deg: 60.0, ..SolverConfig::default() },
             keyframes: KeyframeConfig::default(),
             deskew: true,
         }
@@ -229,9 +259,22 @@ impl OdometryConfig {
     pub fn outdoor() -> Self {
         OdometryConfig {
             features: FeatureConfig { min_range: 2.0, edge_voxel: 0.4, plane_voxel: 0.8, ..FeatureConfig::default() },
-            edge_map: MapConfig { voxel_size: 0.4, points_per_voxel: 3, min_point_distance: 0.1, radius: 100.0 },
-            plane_map: MapConfig { voxel_size: 0.8, points_per_voxel: 3, min_point_distance: 0.2, radius: 100.0 },
+            edge_map: MapConfig {
+                voxel_size: 0.4,
+                points_per_voxel: 3,
+                min_point_distance: 0.1,
+                radius: 100.0,
+                rebuild_every: 10,
+            },
+            plane_map: MapConfig {
+                voxel_size: 0.8,
+                points_per_voxel: 3,
+                min_point_distance: 0.2,
+                radius: 100.0,
+                rebuild_every: 10,
+            },
             keyframes: KeyframeConfig { distance: 2.0, angle_deg: 15.0, voxel: 0.2 },
+            solver: SolverConfig::default(),
             ..Self::indoor()
         }
     }
@@ -368,8 +411,10 @@ impl Odometry {
         self.motion = if self.frames == 0 { SweepMotion::zero() } else { SweepMotion::between(&previous, &self.pose) };
         // Stage 2: the estimated motion corrects the features before they enter the map.
         let corrected = if self.config.deskew { self.motion } else { SweepMotion::zero() };
-        self.edge_map.insert(raw.edges.iter().map(|f| corrected.compensate(&f.point, f.phase)), &self.pose);
-        self.plane_map.insert(raw.planes.iter().map(|f| corrected.compensate(&f.point, f.phase)), &self.pose);
+        let index = self.frames;
+        let placed = |f: &features::Feature| (corrected.compensate(&f.point, f.phase), ScanLine::new(index, f.ring));
+        self.edge_map.insert(raw.edges.iter().map(placed), &self.pose);
+        self.plane_map.insert(raw.planes.iter().map(placed), &self.pose);
         let centre = Point3::from(self.pose.translation.vector);
         self.edge_map.crop_and_rebuild(&centre);
         self.plane_map.crop_and_rebuild(&centre);

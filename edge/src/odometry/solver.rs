@@ -7,7 +7,7 @@ use rayon::prelude::*;
 
 use super::SolverConfig;
 use super::features::Feature;
-use super::local_map::FeatureMap;
+use super::local_map::{FeatureMap, ScanLine};
 
 /// A linearised residual `r = n · (T p − q)`: the signed distance of the transformed feature `p`
 /// from a line (through `q`, `n` ⟂ line toward the point) or a plane (through `q`, normal `n`).
@@ -48,14 +48,31 @@ fn moments(points: &[Point3<f64>]) -> (Point3<f64>, Matrix3<f64>) {
     (Point3::from(mean), cov)
 }
 
-/// The map neighbourhood of `q` if all `k` neighbours lie within the search radius.
+/// The map neighbourhood of `q` if all `k` neighbours lie within the search radius and come from
+/// at least two scan lines (a single ring's trace fits a false horizontal plane or line).
 fn neighbourhood(map: &FeatureMap, q: &Point3<f32>, config: &SolverConfig) -> Option<Vec<Point3<f64>>> {
     let nn = map.knn(q, config.neighbours);
     let r2 = config.max_neighbour_distance * config.max_neighbour_distance;
     if nn.len() < config.neighbours || nn.last()?.dist_sq > r2 {
         return None;
     }
+    if !spans_scan_lines(&nn.iter().map(|n| map.line(n.index)).collect::<Vec<_>>()) {
+        return None;
+    }
     Some(nn.iter().map(|n| map.point(n.index).cast::<f64>()).collect())
+}
+
+/// True when a neighbourhood is sampled across scan lines: three lines, or two lines with two
+/// points each. One ring's trace plus a stray point still fits a plane tilted toward the stray.
+fn spans_scan_lines(lines: &[ScanLine]) -> bool {
+    let mut counts: Vec<(ScanLine, usize)> = Vec::with_capacity(lines.len());
+    for l in lines {
+        match counts.iter_mut().find(|(m, _)| m == l) {
+            Some((_, c)) => *c += 1,
+            None => counts.push((*l, 1)),
+        }
+    }
+    counts.len() >= 3 || counts.iter().filter(|(_, c)| *c >= 2).count() >= 2
 }
 
 /// Edge feature → line fitted to its neighbours, accepted when the largest eigenvalue exceeds
@@ -70,6 +87,21 @@ fn edge_residual(f: &Feature, pose: &Isometry3<f64>, map: &FeatureMap, config: &
         return None;
     }
     let dir = eig.vectors.column(2).into_owned();
+    // A ratio test alone passes clutter (pallet and floor junctions) whose points scatter a decimetre
+    // about their principal axis; a real edge's points lie on it within the range noise.
+    let off_line = |p: &Point3<f64>| {
+        let d = p - centre;
+        (d - dir * d.dot(&dir)).norm()
+    };
+    if pts.iter().any(|p| off_line(p) > config.max_line_deviation) {
+        return None;
+    }
+    // A spinning LiDAR places an edge along its rings to a fraction of the azimuth step, but across
+    // them only to the beam spacing (2° on a VLP-16, ten times coarser): lines lying along the
+    // rings (floor-object junctions, shelf fronts) come out biased in height and are left out.
+    if dir.z.abs() < config.min_line_elevation_deg.to_radians().sin() {
+        return None;
+    }
     let off = w - centre;
     let perp = off - dir * off.dot(&dir);
     let dist = perp.norm();
@@ -226,6 +258,7 @@ pub fn estimate(
 mod tests {
     use super::*;
     use crate::odometry::MapConfig;
+    use crate::odometry::local_map::ScanLine;
     use nalgebra::Vector3;
 
     fn grid_plane(normal_axis: usize, offset: f32, extent: f32, step: f32) -> Vec<Point3<f32>> {
@@ -250,14 +283,15 @@ mod tests {
             points_per_voxel: 10,
             min_point_distance: 0.0,
             radius: 1000.0,
+            rebuild_every: 1,
         });
-        m.insert(points.iter().copied(), &Isometry3::identity());
+        m.insert(points.iter().enumerate().map(|(i, p)| (*p, ScanLine::new(i, 0))), &Isometry3::identity());
         m.crop_and_rebuild(&Point3::origin());
         m
     }
 
     fn features(points: &[Point3<f32>]) -> Vec<Feature> {
-        points.iter().map(|&point| Feature { point, phase: 1.0, smoothness: 0.0 }).collect()
+        points.iter().map(|&point| Feature { point, phase: 1.0, smoothness: 0.0, ring: 0 }).collect()
     }
 
     /// A box room: floor, ceiling and four walls, sampled every 10 cm.
