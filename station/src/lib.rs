@@ -1,0 +1,5 @@
+//! EMR-FLOAM central station library: the map-merging computations behind `emr-station`.
+//!
+//! [`pairwise`] aligns two robot maps without an initial guess (map_merge_3d's global registration).
+
+pub mod pairwise;
