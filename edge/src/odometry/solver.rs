@@ -141,29 +141,38 @@ fn plane_residual(f: &Feature, pose: &Isometry3<f64>, map: &FeatureMap, config: 
 }
 
 /// Normal equations H δ = −b accumulated over residuals, with a Huber kernel.
+///
+/// The perturbation is taken in the sensor frame, `T ← T exp(δ)`, so that the conditioning of H
+/// does not depend on how far the robot is from the odometry origin (in world coordinates a
+/// rotation's eigenvalues grow with the lever arm to the origin).
 #[derive(Clone, Copy)]
 struct Normal {
     h: Matrix6<f64>,
     b: Vector6<f64>,
     weight_sum: f64,
+    /// Σ w |p|² over the sensor-frame points: the lever arm that puts rotations in metres.
+    lever_sum: f64,
 }
 
 impl Normal {
     fn zero() -> Self {
-        Normal { h: Matrix6::zeros(), b: Vector6::zeros(), weight_sum: 0.0 }
+        Normal { h: Matrix6::zeros(), b: Vector6::zeros(), weight_sum: 0.0, lever_sum: 0.0 }
     }
 
-    /// Left perturbation `T ← exp(δ) T`: ∂(T p)/∂δ = [I, −[T p]×], so J = [nᵀ, (T p × n)ᵀ].
+    /// Right perturbation `T ← T exp(δ)`: ∂(T p)/∂δ = R [I, −[p]×], so with m = Rᵀ n the row is
+    /// J = [mᵀ, (p × m)ᵀ].
     fn add(mut self, r: &Residual, pose: &Isometry3<f64>, huber: f64) -> Self {
         let w = pose * r.source;
         let e = r.normal.dot(&(w - r.anchor));
         let robust = if e.abs() <= huber { 1.0 } else { huber / e.abs() };
         let k = r.weight * robust;
-        let rot = w.coords.cross(&r.normal);
-        let j = Vector6::new(r.normal.x, r.normal.y, r.normal.z, rot.x, rot.y, rot.z);
+        let m = pose.rotation.inverse() * r.normal;
+        let rot = r.source.coords.cross(&m);
+        let j = Vector6::new(m.x, m.y, m.z, rot.x, rot.y, rot.z);
         self.h += k * j * j.transpose();
         self.b += k * e * j;
         self.weight_sum += r.weight;
+        self.lever_sum += r.weight * r.source.coords.norm_squared();
         self
     }
 
@@ -171,6 +180,7 @@ impl Normal {
         self.h += o.h;
         self.b += o.b;
         self.weight_sum += o.weight_sum;
+        self.lever_sum += o.lever_sum;
         self
     }
 }
@@ -178,10 +188,17 @@ impl Normal {
 /// Solves H δ = −b, keeping δ at zero along eigen-directions whose eigenvalue is below
 /// `degeneracy_ratio` × Σw (Zhang, Kaess & Singh 2016, "solution remapping"): there the scan does
 /// not constrain the pose, so the motion prior is kept instead of drifting.
+///
+/// Rotations are scaled by the RMS lever arm L first (δ' = [ρ; L φ]), so that both halves of the
+/// problem are in metres and their eigenvalues compare.
 fn solve(n: &Normal, config: &SolverConfig) -> (Vector6<f64>, usize, f64) {
-    let eig = SymmetricEigen::new(n.h);
-    let threshold = config.degeneracy_ratio * n.weight_sum.max(1e-12);
-    let projected_b = eig.eigenvectors.transpose() * n.b;
+    let sum = n.weight_sum.max(1e-12);
+    let lever = (n.lever_sum / sum).sqrt().max(1e-3);
+    let scale = Vector6::new(1.0, 1.0, 1.0, 1.0 / lever, 1.0 / lever, 1.0 / lever);
+    let s = Matrix6::from_diagonal(&scale);
+    let eig = SymmetricEigen::new(s * n.h * s);
+    let threshold = config.degeneracy_ratio * sum;
+    let projected_b = eig.eigenvectors.transpose() * (s * n.b);
     let mut delta_eig = Vector6::zeros();
     let mut degenerate = 0;
     for i in 0..6 {
@@ -192,8 +209,8 @@ fn solve(n: &Normal, config: &SolverConfig) -> (Vector6<f64>, usize, f64) {
             degenerate += 1;
         }
     }
-    let min_ratio = eig.eigenvalues.min() / n.weight_sum.max(1e-12);
-    (eig.eigenvectors * delta_eig, degenerate, min_ratio)
+    let min_ratio = eig.eigenvalues.min() / sum;
+    (s * (eig.eigenvectors * delta_eig), degenerate, min_ratio)
 }
 
 /// Estimates the scan-end pose from the `initial` guess by matching edge and plane features (in the
@@ -232,7 +249,7 @@ pub fn estimate(
                 .fold(Normal::zero, |acc, r| acc.add(r, &pose, config.huber))
                 .reduce(Normal::zero, Normal::merge);
             let (delta, degenerate, min_ratio) = solve(&normal, config);
-            pose = cloud::se3::exp(&delta) * pose;
+            pose *= cloud::se3::exp(&delta);
             out = Estimate {
                 pose,
                 iterations: iteration,

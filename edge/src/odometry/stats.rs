@@ -2,6 +2,17 @@
 
 use serde::Serialize;
 
+fn sorted(values: &[f64]) -> Vec<f64> {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    v
+}
+
+/// The nearest-rank `q` quantile of a sorted, non-empty series.
+fn nearest_rank(sorted: &[f64], q: f64) -> f64 {
+    sorted[((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len()) - 1]
+}
+
 /// Median, 95th percentile and maximum of a series.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Spread {
@@ -19,10 +30,30 @@ impl Spread {
         if values.is_empty() {
             return Spread::default();
         }
-        let mut v = values.to_vec();
-        v.sort_by(f64::total_cmp);
-        let rank = |q: f64| v[((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1];
-        Spread { median: rank(0.5), p95: rank(0.95), max: v[v.len() - 1] }
+        let v = sorted(values);
+        Spread { median: nearest_rank(&v, 0.5), p95: nearest_rank(&v, 0.95), max: v[v.len() - 1] }
+    }
+}
+
+/// Minimum, 5th percentile and median of a series (for figures where the low end matters).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Low {
+    /// Minimum.
+    pub min: f64,
+    /// 5th percentile (nearest rank).
+    pub p5: f64,
+    /// Median.
+    pub median: f64,
+}
+
+impl Low {
+    /// The low end of `values` (all zero when empty).
+    pub fn of(values: &[f64]) -> Self {
+        if values.is_empty() {
+            return Low::default();
+        }
+        let v = sorted(values);
+        Low { min: v[0], p5: nearest_rank(&v, 0.05), median: nearest_rank(&v, 0.5) }
     }
 }
 
@@ -35,6 +66,7 @@ pub struct RunStats {
     planes: Vec<f64>,
     degenerate: usize,
     keyframes: usize,
+    conditioning: Vec<f64>,
 }
 
 /// The summary written as `stats.json`.
@@ -56,6 +88,9 @@ pub struct RunSummary {
     pub plane_features: Spread,
     /// Scans whose pose problem was ill-conditioned (the motion prior was kept along some direction).
     pub degenerate_frames: usize,
+    /// Conditioning of the pose problem (smallest eigenvalue over the sum of weights): the lowest
+    /// value, the 5th percentile and the median over the scans after the first.
+    pub conditioning: Low,
     /// Keyframes made.
     pub keyframes: usize,
 }
@@ -72,6 +107,9 @@ impl RunStats {
         self.planes.push(frame.planes as f64);
         self.degenerate += usize::from(frame.degenerate);
         self.keyframes += usize::from(frame.keyframe.is_some());
+        if self.ms.len() > 1 {
+            self.conditioning.push(frame.conditioning);
+        }
     }
 
     /// The summary so far.
@@ -85,6 +123,7 @@ impl RunStats {
             edge_features: Spread::of(&self.edges),
             plane_features: Spread::of(&self.planes),
             degenerate_frames: self.degenerate,
+            conditioning: Low::of(&self.conditioning),
             keyframes: self.keyframes,
         }
     }
