@@ -1,5 +1,7 @@
 //! EMR-FLOAM central station library: the map-merging computations behind `emr-station`.
 //!
 //! [`pairwise`] aligns two robot maps without an initial guess (map_merge_3d's global registration).
+//! [`merge`] fuses N maps into one global map along a maximum spanning tree of pairwise estimates.
 
+pub mod merge;
 pub mod pairwise;

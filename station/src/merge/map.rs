@@ -1,0 +1,43 @@
+//! Step 1 — everything about one map that does not depend on the others, computed once per revision.
+
+use cloud::PointCloud;
+use cloud::registration::{GaussianCloud, MIN_POINTS};
+use cloud::voxel::downsample;
+
+use super::MergeConfig;
+use crate::pairwise::{FeatureError, MapFeatures};
+
+/// One map ready for pairwise estimates: its finite points, features and VGICP Gaussians.
+pub struct PreparedMap {
+    /// The map's finite points as given (what the global map is built from).
+    pub cloud: PointCloud,
+    /// Points dropped because a coordinate was NaN or infinite.
+    pub dropped_non_finite: usize,
+    /// Pairwise features, or why the map cannot be registered.
+    pub features: Result<MapFeatures, FeatureError>,
+    /// The map at [`MergeConfig::refine_voxel`] with covariances; `None` when too small to refine.
+    pub fine: Option<GaussianCloud>,
+}
+
+impl PreparedMap {
+    /// Drops non-finite points, then computes the features and the VGICP Gaussians concurrently.
+    pub fn new(mut cloud: PointCloud, config: &MergeConfig) -> Self {
+        let dropped_non_finite = cloud.retain_finite();
+        let (features, fine) =
+            rayon::join(|| MapFeatures::compute(&cloud, &config.pairwise), || fine_gaussians(&cloud, config));
+        Self { cloud, dropped_non_finite, features, fine }
+    }
+
+    /// The features if the map is usable.
+    pub fn usable(&self) -> Option<&MapFeatures> {
+        self.features.as_ref().ok()
+    }
+}
+
+/// The map downsampled for VGICP with its covariances, if enough points remain to fix a pose.
+fn fine_gaussians(cloud: &PointCloud, config: &MergeConfig) -> Option<GaussianCloud> {
+    let down = downsample(cloud, config.refine_voxel).ok()?;
+    // Covariances need a neighbourhood; fewer points than neighbours gives no usable shape.
+    (down.len() >= MIN_POINTS.max(config.refine.neighbours))
+        .then(|| GaussianCloud::new(&down.points, config.refine.neighbours))
+}
