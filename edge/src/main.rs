@@ -220,8 +220,12 @@ enum BenchCommand {
 }
 
 fn main() -> Result<()> {
+    // On a terminal, progress and info; headless (a robot's service, a pipe), only errors unless
+    // RUST_LOG says otherwise.
+    use std::io::IsTerminal;
+    let default = if std::io::stderr().is_terminal() { "info" } else { "error" };
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default.into()))
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
