@@ -43,7 +43,7 @@ pub struct FeatureConfig {
     pub edge_threshold: f32,
     /// Smoothness below which a point is a plane candidate. Default 0.1 (m²).
     pub plane_threshold: f32,
-    /// Most edges per sector. Default 20.
+    /// Most edges per sector. Default 20 (F-LOAM); the indoor preset uses 10.
     pub max_edges_per_sector: usize,
     /// Two consecutive points farther apart than this (m) are an occlusion candidate. Default 0.3 m.
     pub occlusion_gap: f32,
@@ -237,7 +237,10 @@ impl OdometryConfig {
     pub fn indoor() -> Self {
         OdometryConfig {
             scan_period: 0.1,
-            features: FeatureConfig::default(),
+            // Ten edges per sector, not F-LOAM's twenty: on the simulated warehouse (VLP-16) this
+            // measured 2.7 / 13.0 cm ATE (aligned / not) against 3.0 / 13.4 cm, and 8.8 ms per
+            // scan against 9.1.
+            features: FeatureConfig { max_edges_per_sector: 10, ..FeatureConfig::default() },
             edge_map: MapConfig {
                 voxel_size: 0.2,
                 points_per_voxel: 3,
@@ -261,7 +264,13 @@ impl OdometryConfig {
     /// Outdoor preset (streets, campuses): F-LOAM's KITTI map resolution, longer crop.
     pub fn outdoor() -> Self {
         OdometryConfig {
-            features: FeatureConfig { min_range: 2.0, edge_voxel: 0.4, plane_voxel: 0.8, ..FeatureConfig::default() },
+            features: FeatureConfig {
+                min_range: 2.0,
+                edge_voxel: 0.4,
+                plane_voxel: 0.8,
+                max_edges_per_sector: 20,
+                ..FeatureConfig::default()
+            },
             edge_map: MapConfig {
                 voxel_size: 0.4,
                 points_per_voxel: 3,
