@@ -7,6 +7,7 @@ pub mod alignment;
 pub mod eigen3;
 pub mod formats;
 pub mod kdtree;
+pub mod moments;
 pub mod point_cloud;
 pub mod registration;
 pub mod se3;

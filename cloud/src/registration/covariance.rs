@@ -1,10 +1,11 @@
 //! Per-point covariances of local neighbourhoods, regularised to plane-like Gaussians.
 
-use nalgebra::{Matrix3, Point3, Vector3};
+use nalgebra::{Matrix3, Point3};
 use rayon::prelude::*;
 
 use crate::eigen3::symmetric_eigen3;
 use crate::kdtree::KdTree;
+use crate::moments::mean_covariance;
 
 /// Smallest eigenvalue given to every covariance: the plane's thickness relative to its extent
 /// (Segal et al., "Generalized-ICP", 2009: eigenvalues replaced by (ε, 1, 1)).
@@ -37,15 +38,8 @@ fn neighbourhood_covariance<'a>(points: impl ExactSizeIterator<Item = &'a Point3
     if n < MIN_NEIGHBOURS {
         return Matrix3::identity();
     }
-    let to64 = |p: &Point3<f32>| Vector3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
-    // Two passes (mean, then spread about it): one-pass sums cancel badly for points far from the origin.
-    let mean = points.clone().map(to64).sum::<Vector3<f64>>() / n as f64;
-    let mut cov = Matrix3::zeros();
-    for p in points {
-        let d = to64(p) - mean;
-        cov += d * d.transpose();
-    }
-    regularise(&(cov / n as f64))
+    let (_, cov) = mean_covariance(points.map(|p| p.coords.cast::<f64>()));
+    regularise(&cov)
 }
 
 /// Replaces the eigenvalues of a covariance by (ε, 1, 1), keeping its axes: every neighbourhood
@@ -64,6 +58,7 @@ pub fn regularise(cov: &Matrix3<f64>) -> Matrix3<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Vector3;
 
     #[test]
     fn plane_gets_its_normal_as_thin_axis() {

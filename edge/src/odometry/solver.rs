@@ -1,8 +1,9 @@
 //! Scan-to-map pose estimation (F-LOAM eq. 4): edge features to lines, plane features to planes,
 //! robust Gauss-Newton on SE(3) with analytic Jacobians, and degeneracy-aware updates.
 
-use cloud::eigen3::symmetric_eigen3;
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
+use cloud::eigen3::{SymmetricEigen3, symmetric_eigen3};
+use cloud::moments::mean_covariance;
+use nalgebra::{Isometry3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
 use rayon::prelude::*;
 
 use super::SolverConfig;
@@ -37,15 +38,27 @@ pub struct Estimate {
     pub min_eigen_ratio: f64,
 }
 
-/// Mean and covariance of a point neighbourhood.
-fn moments(points: &[Point3<f64>]) -> (Point3<f64>, Matrix3<f64>) {
-    let n = points.len() as f64;
-    let mean = points.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / n;
-    let cov = points.iter().fold(Matrix3::zeros(), |a, p| {
-        let d = p.coords - mean;
-        a + d * d.transpose()
-    }) / n;
-    (Point3::from(mean), cov)
+/// A feature with the line or plane geometry of its map neighbourhood.
+struct LocalFit {
+    /// The feature in the sweep-end sensor frame.
+    source: Point3<f64>,
+    /// The feature placed by the current pose.
+    world: Point3<f64>,
+    /// The map neighbours.
+    points: Vec<Point3<f64>>,
+    /// Their mean.
+    centre: Point3<f64>,
+    /// Eigen-decomposition of their covariance.
+    eig: SymmetricEigen3,
+}
+
+/// Places the feature by `pose` and decomposes its map neighbourhood (see [`neighbourhood`]).
+fn local_fit(f: &Feature, pose: &Isometry3<f64>, map: &FeatureMap, config: &SolverConfig) -> Option<LocalFit> {
+    let source = f.point.cast::<f64>();
+    let world = pose * source;
+    let points = neighbourhood(map, &world.cast::<f32>(), config)?;
+    let (mean, cov) = mean_covariance(points.iter().map(|p| p.coords));
+    Some(LocalFit { source, world, points, centre: Point3::from(mean), eig: symmetric_eigen3(&cov) })
 }
 
 /// The map neighbourhood of `q` if all `k` neighbours lie within the search radius and come from
@@ -78,11 +91,7 @@ fn spans_scan_lines(lines: &[ScanLine]) -> bool {
 /// Edge feature → line fitted to its neighbours, accepted when the largest eigenvalue exceeds
 /// `line_ratio` × the middle one (the points really spread along one direction).
 fn edge_residual(f: &Feature, pose: &Isometry3<f64>, map: &FeatureMap, config: &SolverConfig) -> Option<Residual> {
-    let source = f.point.cast::<f64>();
-    let w = pose * source;
-    let pts = neighbourhood(map, &w.cast::<f32>(), config)?;
-    let (centre, cov) = moments(&pts);
-    let eig = symmetric_eigen3(&cov);
+    let LocalFit { source, world: w, points: pts, centre, eig } = local_fit(f, pose, map, config)?;
     if eig.values[2] < config.line_ratio * eig.values[1] {
         return None;
     }
@@ -114,11 +123,7 @@ fn edge_residual(f: &Feature, pose: &Isometry3<f64>, map: &FeatureMap, config: &
 /// Plane feature → plane fitted to its neighbours, accepted when every neighbour lies within
 /// `max_plane_deviation` of it.
 fn plane_residual(f: &Feature, pose: &Isometry3<f64>, map: &FeatureMap, config: &SolverConfig) -> Option<Residual> {
-    let source = f.point.cast::<f64>();
-    let w = pose * source;
-    let pts = neighbourhood(map, &w.cast::<f32>(), config)?;
-    let (centre, cov) = moments(&pts);
-    let eig = symmetric_eigen3(&cov);
+    let LocalFit { source, points: pts, centre, eig, .. } = local_fit(f, pose, map, config)?;
     // Neighbours strung along one line (one scan ring) fit every plane through that line: the
     // normal would be arbitrary about it and bias the pose. Demand a two-dimensional spread.
     if eig.values[1] < config.plane_spread * eig.values[2] {

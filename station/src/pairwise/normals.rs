@@ -19,7 +19,8 @@
 use cloud::PointCloud;
 use cloud::eigen3::symmetric_eigen3;
 use cloud::kdtree::{KdTree, Neighbour};
-use nalgebra::{Matrix3, Point3, Vector3};
+use cloud::moments::mean_covariance;
+use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use super::FeatureError;
@@ -186,12 +187,7 @@ pub fn estimate_normals(cloud: &PointCloud, config: &NormalConfig, reach: f32) -
 
 /// The least-squares plane normal of the neighbourhood, or `None` when it is (near) collinear.
 fn plane_normal(points: &[Point3<f32>], nn: &[Neighbour]) -> Option<Vector3<f32>> {
-    let n = nn.len() as f64;
-    let mean = nn.iter().fold(Vector3::zeros(), |acc, k| acc + points[k.index].coords.cast::<f64>()) / n;
-    let cov = nn.iter().fold(Matrix3::zeros(), |acc, k| {
-        let d = points[k.index].coords.cast::<f64>() - mean;
-        acc + d * d.transpose()
-    }) / n;
+    let (_, cov) = mean_covariance(nn.iter().map(|k| points[k.index].coords.cast::<f64>()));
     let eig = symmetric_eigen3(&cov);
     // A line (λ₁ ≈ 0) has no unique plane; its "normal" would be noise.
     if eig.values[2].is_nan() || eig.values[2] <= 0.0 || eig.values[1] < 1e-4 * eig.values[2] {
