@@ -88,7 +88,8 @@ fn station_status_and_request_round_trip() {
         malformed_payloads: 3,
         stamp: Some(Timestamp::now()),
     });
-    round_trip(&KeyframeRequest { seqs: vec![0, 5, 6, 7, u64::MAX] });
+    round_trip(&KeyframeRequest { seqs: vec![0, 5, 6, 7, u64::MAX], from_seq: None });
+    round_trip(&KeyframeRequest { seqs: vec![], from_seq: Some(42) });
 }
 
 #[test]
