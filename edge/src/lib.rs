@@ -1,6 +1,8 @@
 //! The robot side of EMR-FLOAM: scan sources (simulator and recordings), odometry, keyframes.
 
+pub mod node;
 pub mod odometry;
 pub mod recording;
 pub mod sim;
 pub mod source;
+pub mod wire;

@@ -3,24 +3,28 @@
 mod bench;
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
+use bus::NetworkArgs;
 use clap::builder::{PossibleValue, PossibleValuesParser};
 use clap::{Parser, Subcommand, ValueEnum};
 use cloud::trajectory::Trajectory;
+use edge::node::{self, NodeConfig, NodeSummary, Rate, SourceEnd};
 use edge::odometry::stats::RunStats;
 use edge::odometry::{Odometry, OdometryConfig};
 use edge::recording::{self, RecordingOptions, RingModel, Spin, TimeModel};
 use edge::sim::{self, Scenario, SensorKind, SimConfig, Simulator};
 use edge::source::{Source, SourceSpec};
 use indicatif::{ProgressBar, ProgressStyle};
+use proto::Fleet;
 
 /// The robot (edge) side of EMR-FLOAM multi-robot LiDAR SLAM.
 ///
 /// Each robot runs one `emr-edge`: it turns LiDAR scans into odometry, closes its own loops and
 /// streams compressed keyframes to the central station over Zenoh. Scans come from a source: the
 /// built-in simulator (`sim:SCENARIO:ROBOT`) or a recording (a directory of .bin/.pcd/.ply scans, a
-/// ROS 1 .bag, an .mcap file). The networked service arrives with a later release.
+/// ROS 1 .bag, an .mcap file). `emr-edge run` is the networked service.
 #[derive(Parser, Debug)]
 #[command(name = "emr-edge", version, about, long_about)]
 struct Cli {
@@ -51,16 +55,74 @@ enum Command {
     /// Compare an estimated trajectory with ground truth (KITTI or TUM files): ATE RMSE with and
     /// without SE(3) alignment, and RPE (translation %, deg/100 m) KITTI style.
     Eval(EvalArgs),
+    /// The robot's network service: odometry on a source, each keyframe published on
+    /// emr/FLEET/robot/ID/keyframe, the keyframes kept for backfill requests on
+    /// emr/FLEET/robot/ID/keyframes, and a liveliness token on emr/FLEET/robot/ID/alive. Without
+    /// --zenoh, --listen or --connect it is a loopback peer listening on tcp/127.0.0.1:7447. When the
+    /// source ends it keeps answering backfill requests until Ctrl-C or SIGTERM (unless
+    /// --exit-when-done); either signal stops it cleanly (exit code 0) after publishing the keyframes
+    /// already made.
+    Run(RunArgs),
 }
 
-/// Arguments of `emr-edge odometry`.
+/// Arguments of `emr-edge run`.
 #[derive(clap::Args, Debug)]
-struct OdometryArgs {
-    #[command(flatten)]
-    source: SourceArgs,
-    /// Output directory (created if missing).
+struct RunArgs {
+    /// Fleet name: ASCII letters, digits, '-' and '_'.
+    #[arg(long, value_parser = |s: &str| Fleet::new(s))]
+    fleet: Fleet,
+    /// Robot id within the fleet [default: ROBOT of a sim:SCENARIO:ROBOT source, which it must match].
     #[arg(long)]
-    out: PathBuf,
+    robot: Option<u32>,
+    /// The source: a directory of scans, a .bag or .mcap file, or sim:SCENARIO:ROBOT.
+    #[arg(long, value_name = "INPUT")]
+    source: SourceSpec,
+    /// Topic of sensor_msgs/PointCloud2 in a bag or MCAP file [default: the only one].
+    #[arg(long)]
+    topic: Option<String>,
+    /// Pace: realtime plays scans at their stamps, max as fast as the odometry goes.
+    #[arg(long, value_enum, default_value_t = RateArg::Realtime)]
+    rate: RateArg,
+    /// Stop reading after this many scans.
+    #[arg(long)]
+    max_frames: Option<usize>,
+    #[command(flatten)]
+    tuning: TuningArgs,
+    /// Exit when the source ends instead of answering backfill requests until a signal.
+    #[arg(long)]
+    exit_when_done: bool,
+    /// When the source ends, write {"robot", "frames", "keyframes", "published_bytes"} here (JSON):
+    /// how scripts and the system tests learn that a robot is done while it keeps serving.
+    #[arg(long, value_name = "FILE")]
+    summary: Option<PathBuf>,
+    #[command(flatten)]
+    network: NetworkArgs,
+}
+
+/// The loopback port `emr-edge run` listens on without network options (zenoh's usual port).
+const DEFAULT_PORT: u16 = 7447;
+
+/// Paces of `emr-edge run`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum RateArg {
+    /// Scans at their stamps, as a live sensor delivers them.
+    Realtime,
+    /// As fast as the odometry goes.
+    Max,
+}
+
+impl From<RateArg> for Rate {
+    fn from(r: RateArg) -> Self {
+        match r {
+            RateArg::Realtime => Rate::Realtime,
+            RateArg::Max => Rate::Max,
+        }
+    }
+}
+
+/// How the odometry is configured (shared by the commands that run it).
+#[derive(clap::Args, Debug)]
+struct TuningArgs {
     /// Odometry configuration (TOML; `emr-edge odometry --print-config` shows every key and its
     /// default). Keys left out keep the preset's values.
     #[arg(long)]
@@ -71,6 +133,18 @@ struct OdometryArgs {
     /// Turn motion compensation off: for recordings published already compensated (KITTI's).
     #[arg(long)]
     no_deskew: bool,
+}
+
+/// Arguments of `emr-edge odometry`.
+#[derive(clap::Args, Debug)]
+struct OdometryArgs {
+    #[command(flatten)]
+    source: SourceArgs,
+    /// Output directory (created if missing).
+    #[arg(long)]
+    out: PathBuf,
+    #[command(flatten)]
+    tuning: TuningArgs,
     /// Stop after this many scans.
     #[arg(long)]
     max_frames: Option<usize>,
@@ -247,6 +321,7 @@ fn main() -> Result<()> {
         Command::Convert(args) => convert(args)?,
         Command::Odometry(args) => odometry(args)?,
         Command::Eval(args) => evaluate(&args)?,
+        Command::Run(args) => run(args)?,
     }
     Ok(())
 }
@@ -327,7 +402,7 @@ fn convert(args: ConvertArgs) -> Result<()> {
 }
 
 /// The odometry configuration: preset, then the file's keys, then flags.
-fn odometry_config(args: &OdometryArgs) -> Result<OdometryConfig> {
+fn odometry_config(args: &TuningArgs) -> Result<OdometryConfig> {
     let mut config = match args.preset {
         Preset::Indoor => OdometryConfig::indoor(),
         Preset::Outdoor => OdometryConfig::outdoor(),
@@ -349,6 +424,16 @@ fn odometry_config(args: &OdometryArgs) -> Result<OdometryConfig> {
     Ok(config)
 }
 
+/// How recordings are read for the odometry: rings and per-point times derived where missing.
+fn recording_options(topic: Option<String>, config: &OdometryConfig) -> RecordingOptions {
+    RecordingOptions {
+        topic,
+        rings: RingModel::Auto,
+        times: TimeModel::Azimuth { period_s: config.scan_period, spin: Spin::Detect },
+        ..RecordingOptions::default()
+    }
+}
+
 /// Recursively overlays `overlay` onto `base`.
 fn merge(base: &mut toml::Table, overlay: toml::Table) {
     for (key, value) in overlay {
@@ -363,17 +448,12 @@ fn merge(base: &mut toml::Table, overlay: toml::Table) {
 
 /// `emr-edge odometry`.
 fn odometry(args: OdometryArgs) -> Result<()> {
-    let config = odometry_config(&args)?;
+    let config = odometry_config(&args.tuning)?;
     if args.print_config {
         print!("{}", toml::to_string(&config)?);
         return Ok(());
     }
-    let options = RecordingOptions {
-        topic: args.source.topic.clone(),
-        rings: RingModel::Auto,
-        times: TimeModel::Azimuth { period_s: config.scan_period, spin: Spin::Detect },
-        ..RecordingOptions::default()
-    };
+    let options = recording_options(args.source.topic.clone(), &config);
     let source = Source::open(&args.source.input, args.max_frames, &SimConfig::default(), &options)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let bar = progress_bar(source.len, "scans");
@@ -430,6 +510,79 @@ fn odometry(args: OdometryArgs) -> Result<()> {
     write(&args.out.join("stats.json"), &serde_json::to_string_pretty(&json)?)?;
     println!("{}", serde_json::to_string_pretty(&json)?);
     Ok(())
+}
+
+/// `emr-edge run`: the node on its own runtime until the source ends or a signal comes.
+fn run(args: RunArgs) -> Result<()> {
+    let robot = robot_id(args.robot, &args.source)?;
+    let odometry = odometry_config(&args.tuning)?;
+    let config = NodeConfig {
+        max_frames: args.max_frames,
+        rate: args.rate.into(),
+        recording: recording_options(args.topic.clone(), &odometry),
+        odometry,
+        linger: !args.exit_when_done,
+        on_source_end: args.summary.clone().map(|path| summary_writer(path, robot)),
+        ..NodeConfig::new(args.fleet.clone(), robot, args.source.clone())
+    };
+    let network = args.network.network(&[DEFAULT_PORT]);
+    let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build().context("cannot start tokio")?;
+    let summary = runtime.block_on(async {
+        // Listen for the signals before anything slow, so that an early Ctrl-C still stops cleanly.
+        let shutdown = shutdown_signal()?;
+        let session = network.open().await.with_context(|| format!("cannot join {}", bus::describe(&network)))?;
+        let summary = node::run(&session, config, shutdown).await;
+        if let Err(e) = session.close().await {
+            tracing::warn!("cannot close the zenoh session: {e}");
+        }
+        summary.with_context(|| format!("robot {robot} of fleet {}", args.fleet))
+    })?;
+    tracing::info!(
+        "robot {robot}: {} scans, {} keyframes, {:.1} MB published",
+        summary.frames,
+        summary.keyframes,
+        summary.published_bytes as f64 / 1e6
+    );
+    Ok(())
+}
+
+/// Writes the node's summary to `path` atomically (a reader never sees half a file).
+fn summary_writer(path: PathBuf, robot: u32) -> SourceEnd {
+    SourceEnd(Arc::new(move |s: &NodeSummary| {
+        let json = serde_json::json!({
+            "robot": robot, "frames": s.frames, "keyframes": s.keyframes, "published_bytes": s.published_bytes,
+        });
+        let partial = path.with_extension("partial");
+        let written = std::fs::write(&partial, json.to_string()).and_then(|()| std::fs::rename(&partial, &path));
+        if let Err(e) = written {
+            tracing::error!("cannot write the summary {}: {e}", path.display());
+        }
+    }))
+}
+
+/// The robot id: as given, or the simulated robot's, which a given id must match.
+fn robot_id(given: Option<u32>, source: &SourceSpec) -> Result<u32> {
+    match (given, source) {
+        (Some(id), SourceSpec::Sim { robot, .. }) if id != *robot => {
+            bail!("--robot {id} does not match the simulated robot of --source (robot {robot})")
+        }
+        (Some(id), _) => Ok(id),
+        (None, SourceSpec::Sim { robot, .. }) => Ok(*robot),
+        (None, SourceSpec::Recording(path)) => bail!("--robot is required with a recording ({})", path.display()),
+    }
+}
+
+/// Resolves on SIGINT (Ctrl-C) or SIGTERM; the handlers are installed when this is called.
+fn shutdown_signal() -> Result<impl std::future::Future<Output = ()>> {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut interrupt = signal(SignalKind::interrupt()).context("cannot handle SIGINT")?;
+    let mut terminate = signal(SignalKind::terminate()).context("cannot handle SIGTERM")?;
+    Ok(async move {
+        tokio::select! {
+            _ = interrupt.recv() => {}
+            _ = terminate.recv() => {}
+        }
+    })
 }
 
 /// `emr-edge eval`.

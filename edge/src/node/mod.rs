@@ -1,0 +1,395 @@
+//! The robot's network service: odometry on a scan source, keyframes published on Zenoh, a keyframe
+//! store answering backfill requests, and a liveliness token while it runs.
+//!
+//! The source and the odometry run on a blocking thread (`worker`); this module's async half
+//! publishes what it registers, keeps the encoded keyframes (`store`) and serves them (`serve`).
+//!
+//! Backfill replies all carry the store's key expression (`emr/{fleet}/robot/{id}/keyframes`), one
+//! sample per keyframe: an asker must `get` with `ConsolidationMode::None`, or zenoh's default
+//! consolidation keeps a single reply.
+
+mod serve;
+mod store;
+mod worker;
+
+use std::future::Future;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use nalgebra::Isometry3;
+use proto::codec::{CodecConfig, EncodeError};
+use proto::{Fleet, keyexpr};
+use tokio::sync::{mpsc, oneshot};
+use tokio::task::JoinHandle;
+use tracing::{info, warn};
+use zenoh::Session;
+use zenoh::bytes::ZBytes;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::pubsub::Publisher;
+use zenoh::qos::CongestionControl;
+
+use crate::odometry::{Odometry, OdometryConfig, OdometryError};
+use crate::recording::RecordingOptions;
+use crate::sim::SimConfig;
+use crate::source::{Source, SourceError, SourceSpec};
+use store::Store;
+use worker::{EncodedKeyframe, Registered, Worker};
+
+/// Default budget of the keyframe store: 256 MiB of encoded keyframes.
+pub const DEFAULT_STORE_BYTES: usize = 256 << 20;
+
+/// Registered scans in flight between the odometry thread and the publisher.
+const CHANNEL_SCANS: usize = 32;
+
+/// How long the first keyframe waits for a subscriber before it is published anyway.
+const MATCH_PATIENCE: Duration = Duration::from_secs(2);
+
+/// Scans between two progress lines.
+const PROGRESS_EVERY: usize = 100;
+
+/// How fast the source is read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Rate {
+    /// Scans are paced by their stamps, as a live sensor would deliver them.
+    Realtime,
+    /// As fast as the odometry goes.
+    Max,
+}
+
+/// Everything a node needs besides its session.
+#[derive(Clone, Debug)]
+pub struct NodeConfig {
+    /// Fleet the robot belongs to.
+    pub fleet: Fleet,
+    /// Robot id within the fleet.
+    pub robot: u32,
+    /// Where scans come from.
+    pub source: SourceSpec,
+    /// Stop after this many scans.
+    pub max_frames: Option<usize>,
+    /// How fast the source is read.
+    pub rate: Rate,
+    /// The odometry's configuration.
+    pub odometry: OdometryConfig,
+    /// Simulated sensor settings (for `sim:` sources).
+    pub sim: SimConfig,
+    /// How recordings are read.
+    pub recording: RecordingOptions,
+    /// How keyframe clouds are compressed.
+    pub codec: CodecConfig,
+    /// Bytes of encoded keyframes kept for backfill; the oldest are evicted first.
+    pub store_bytes: usize,
+    /// After the source ends, keep serving backfill requests until shutdown.
+    pub linger: bool,
+    /// Called once when the source has ended and its keyframes are published (before lingering).
+    pub on_source_end: Option<SourceEnd>,
+}
+
+/// A callback told what the node did when its source ends: the demo and `emr-edge run --summary`
+/// learn there that the robot is done while it still serves backfill requests.
+#[derive(Clone)]
+pub struct SourceEnd(pub Arc<dyn Fn(&NodeSummary) + Send + Sync>);
+
+impl std::fmt::Debug for SourceEnd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("SourceEnd(..)")
+    }
+}
+
+impl NodeConfig {
+    /// Defaults: realtime, indoor odometry, 1 mm codec, a 256 MiB store, lingering after the source.
+    pub fn new(fleet: Fleet, robot: u32, source: SourceSpec) -> Self {
+        NodeConfig {
+            fleet,
+            robot,
+            source,
+            max_frames: None,
+            rate: Rate::Realtime,
+            odometry: OdometryConfig::indoor(),
+            sim: SimConfig::default(),
+            recording: RecordingOptions::default(),
+            codec: CodecConfig::default(),
+            store_bytes: DEFAULT_STORE_BYTES,
+            linger: true,
+            on_source_end: None,
+        }
+    }
+}
+
+/// What a node did.
+#[derive(Clone, Debug, Default)]
+pub struct NodeSummary {
+    /// Scans registered.
+    pub frames: usize,
+    /// Keyframes published.
+    pub keyframes: u64,
+    /// Sensor pose at each scan's sweep end, odometry frame.
+    pub poses: Vec<Isometry3<f64>>,
+    /// Each scan's sweep start, seconds.
+    pub stamps: Vec<f64>,
+    /// Each scan's ground-truth pose (world frame), when the source knows it.
+    pub ground_truth: Vec<Option<Isometry3<f64>>>,
+    /// Bytes of keyframe messages published.
+    pub published_bytes: u64,
+}
+
+/// Why a node stopped with an error.
+#[derive(Debug, thiserror::Error)]
+pub enum NodeError {
+    /// The source could not be opened.
+    #[error("source {input}: {source}")]
+    Source {
+        /// The source as given.
+        input: String,
+        /// What went wrong (boxed: it is large, and rare).
+        source: Box<SourceError>,
+    },
+    /// The odometry configuration is unusable.
+    #[error("odometry: {0}")]
+    OdometryConfig(#[source] OdometryError),
+    /// A scan could not be registered.
+    #[error("scan {index}: {source}")]
+    Odometry {
+        /// Position of the scan in the source.
+        index: usize,
+        /// What the odometry said.
+        source: OdometryError,
+    },
+    /// A keyframe's cloud could not be encoded.
+    #[error("keyframe {seq}: {source}")]
+    Encode {
+        /// Keyframe sequence number.
+        seq: u64,
+        /// What the codec said.
+        source: EncodeError,
+    },
+    /// Zenoh refused a declaration or a publication.
+    #[error("zenoh: cannot {what} {key}: {message}")]
+    Zenoh {
+        /// What was attempted.
+        what: &'static str,
+        /// The key expression.
+        key: String,
+        /// What zenoh said.
+        message: String,
+    },
+    /// The odometry thread panicked.
+    #[error("the odometry thread failed: {0}")]
+    Worker(String),
+}
+
+/// Runs a robot until its source ends (and, when `linger`, until `shutdown`) or `shutdown` resolves:
+/// then it publishes the keyframes already made, undeclares everything and says what it did.
+pub async fn run(
+    session: &Session,
+    config: NodeConfig,
+    shutdown: impl Future<Output = ()>,
+) -> Result<NodeSummary, NodeError> {
+    let worker = Worker {
+        source: open_source(&config).await?,
+        odometry: Odometry::new(config.odometry.clone()).map_err(NodeError::OdometryConfig)?,
+        fleet: config.fleet.clone(),
+        robot: config.robot,
+        codec: config.codec.clone(),
+        rate: config.rate,
+    };
+    let links = Links::declare(session, &config).await?;
+    let (tx, rx) = mpsc::channel(CHANNEL_SCANS);
+    let thread = tokio::task::spawn_blocking(move || worker.run(tx));
+    let mut outbox = Outbox::new(&links, config.robot);
+    let pumped = pump(&mut outbox, rx, thread, &config, shutdown).await;
+    let summary = outbox.summary;
+    links.undeclare().await;
+    pumped?;
+    Ok(summary)
+}
+
+/// Opens the source off the async threads (a simulated world is built, a recording indexed).
+async fn open_source(config: &NodeConfig) -> Result<Source, NodeError> {
+    let (spec, frames, sim, recording) =
+        (config.source.clone(), config.max_frames, config.sim.clone(), config.recording.clone());
+    let opened = tokio::task::spawn_blocking(move || Source::open(&spec, frames, &sim, &recording))
+        .await
+        .map_err(|e| NodeError::Worker(e.to_string()))?;
+    opened.map_err(|e| NodeError::Source { input: describe(&config.source), source: Box::new(e) })
+}
+
+/// A source as the user wrote it.
+pub fn describe(spec: &SourceSpec) -> String {
+    match spec {
+        SourceSpec::Sim { scenario, robot } => format!("sim:{scenario}:{robot}"),
+        SourceSpec::Recording(path) => path.display().to_string(),
+    }
+}
+
+/// Publishes what the worker registers until it is done, then lingers if asked; on `shutdown`
+/// closes the channel (the worker stops after its current scan) and drains what is in it.
+async fn pump(
+    outbox: &mut Outbox<'_>,
+    mut rx: mpsc::Receiver<Registered>,
+    thread: JoinHandle<Result<(), NodeError>>,
+    config: &NodeConfig,
+    shutdown: impl Future<Output = ()>,
+) -> Result<(), NodeError> {
+    let linger = config.linger;
+    let mut shutdown = std::pin::pin!(shutdown);
+    let mut thread = Some(thread);
+    let mut stopping = false;
+    loop {
+        tokio::select! {
+            () = &mut shutdown, if !stopping => {
+                info!("robot {}: shutting down, publishing the keyframes already made", outbox.robot);
+                stopping = true;
+                rx.close();
+            }
+            scan = rx.recv(), if thread.is_some() => match scan {
+                Some(scan) => outbox.send(scan).await?,
+                None => if let Some(thread) = thread.take() {
+                    finish(thread).await?;
+                    info!("robot {}: source done after {} scans", outbox.robot, outbox.summary.frames);
+                    if let Some(SourceEnd(tell)) = &config.on_source_end && !stopping {
+                        tell(&outbox.summary);
+                    }
+                },
+            },
+            else => break,
+        }
+        if thread.is_none() && (stopping || !linger) {
+            break;
+        }
+    }
+    Ok(())
+}
+
+/// The worker's outcome once its channel has closed.
+async fn finish(thread: JoinHandle<Result<(), NodeError>>) -> Result<(), NodeError> {
+    thread.await.map_err(|e| NodeError::Worker(e.to_string()))?
+}
+
+/// What a node declares on its session.
+struct Links<'a> {
+    token: LivelinessToken,
+    publisher: Publisher<'a>,
+    store: Arc<Mutex<Store>>,
+    serving: JoinHandle<()>,
+    stop_serving: oneshot::Sender<()>,
+}
+
+impl<'a> Links<'a> {
+    /// The liveliness token, the keyframe publisher and the store's queryable.
+    async fn declare(session: &'a Session, config: &NodeConfig) -> Result<Self, NodeError> {
+        let (fleet, robot) = (&config.fleet, config.robot);
+        let alive = keyexpr::alive(fleet, robot);
+        let token = session.liveliness().declare_token(&alive).await.map_err(zenoh_error("declare", &alive))?;
+        let key = keyexpr::keyframe(fleet, robot);
+        // Block, not the default Drop: a keyframe dropped under load would leave a gap to backfill.
+        // Reliability is zenoh's default (reliable); setting it explicitly is an unstable API.
+        let publisher = session
+            .declare_publisher(key.clone())
+            .congestion_control(CongestionControl::Block)
+            .await
+            .map_err(zenoh_error("declare", &key))?;
+        let key = keyexpr::keyframe_store(fleet, robot);
+        let queryable = session.declare_queryable(key.clone()).await.map_err(zenoh_error("declare", &key))?;
+        let store = Arc::new(Mutex::new(Store::new(config.store_bytes)));
+        let (stop_serving, stop) = oneshot::channel();
+        let serving = tokio::spawn(serve::serve(queryable, store.clone(), stop));
+        Ok(Links { token, publisher, store, serving, stop_serving })
+    }
+
+    /// Stops serving and undeclares everything; failures are only logged (the node is done anyway).
+    async fn undeclare(self) {
+        let _ = self.stop_serving.send(());
+        if let Err(e) = self.serving.await {
+            warn!("the keyframe queryable task failed: {e}");
+        }
+        if let Err(e) = self.publisher.undeclare().await {
+            warn!("cannot undeclare the keyframe publisher: {e}");
+        }
+        if let Err(e) = self.token.undeclare().await {
+            warn!("cannot undeclare the liveliness token: {e}");
+        }
+    }
+}
+
+/// Maps a zenoh error to [`NodeError::Zenoh`].
+fn zenoh_error(what: &'static str, key: &str) -> impl FnOnce(zenoh::Error) -> NodeError {
+    let key = key.to_owned();
+    move |e| NodeError::Zenoh { what, key, message: e.to_string() }
+}
+
+/// The publishing side: stores and publishes keyframes, and keeps the summary.
+struct Outbox<'l> {
+    links: &'l Links<'l>,
+    robot: u32,
+    matched: bool,
+    summary: NodeSummary,
+}
+
+impl<'l> Outbox<'l> {
+    fn new(links: &'l Links<'l>, robot: u32) -> Self {
+        Outbox { links, robot, matched: false, summary: NodeSummary::default() }
+    }
+
+    /// Records one registered scan and publishes its keyframe, if any.
+    async fn send(&mut self, scan: Registered) -> Result<(), NodeError> {
+        let s = &mut self.summary;
+        s.frames += 1;
+        s.poses.push(scan.pose);
+        s.stamps.push(scan.stamp);
+        s.ground_truth.push(scan.ground_truth);
+        if let Some(kf) = scan.keyframe {
+            self.publish(kf).await?;
+        }
+        if self.summary.frames.is_multiple_of(PROGRESS_EVERY) {
+            info!("robot {}: {} scans, {} keyframes", self.robot, self.summary.frames, self.summary.keyframes);
+        }
+        Ok(())
+    }
+
+    /// Stores a keyframe (first, so a backfill request racing the publication finds it) and puts it.
+    async fn publish(&mut self, kf: EncodedKeyframe) -> Result<(), NodeError> {
+        if !self.matched {
+            self.matched = true;
+            self.await_subscriber().await;
+        }
+        let payload = ZBytes::from(kf.payload);
+        let bytes = payload.len() as u64;
+        let evicted = self.links.store.lock().unwrap_or_else(PoisonError::into_inner).insert(kf.seq, payload.clone());
+        if let Some(range) = evicted {
+            warn!(
+                "robot {}: keyframe store over its budget, evicted keyframes {}..={}",
+                self.robot,
+                range.start(),
+                range.end()
+            );
+        }
+        let key = self.links.publisher.key_expr();
+        self.links.publisher.put(payload).await.map_err(zenoh_error("publish on", key.as_str()))?;
+        self.summary.keyframes += 1;
+        self.summary.published_bytes += bytes;
+        Ok(())
+    }
+
+    /// Waits (a bounded time) for a subscriber so that the first keyframes are not sent into the void;
+    /// whatever is missed anyway the station backfills.
+    async fn await_subscriber(&self) {
+        let publisher = &self.links.publisher;
+        let deadline = tokio::time::Instant::now() + MATCH_PATIENCE;
+        loop {
+            match publisher.matching_status().await {
+                Ok(status) if status.matching() => return,
+                Ok(_) => {}
+                Err(e) => {
+                    warn!("robot {}: cannot ask for subscribers: {e}", self.robot);
+                    return;
+                }
+            }
+            if tokio::time::Instant::now() >= deadline {
+                info!("robot {}: no subscriber yet, publishing anyway", self.robot);
+                return;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+}

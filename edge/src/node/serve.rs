@@ -1,0 +1,64 @@
+//! The keyframe store's queryable: answers `KeyframeRequest`s with the keyframes still held.
+
+use std::sync::{Arc, Mutex, PoisonError};
+
+use prost::Message;
+use proto::KeyframeRequest;
+use tokio::sync::oneshot;
+use tracing::{debug, warn};
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::query::{Query, Queryable};
+
+use super::store::Store;
+
+/// Serves queries until `stop` fires (or is dropped), then undeclares the queryable.
+pub(crate) async fn serve(
+    queryable: Queryable<FifoChannelHandler<Query>>,
+    store: Arc<Mutex<Store>>,
+    mut stop: oneshot::Receiver<()>,
+) {
+    loop {
+        tokio::select! {
+            _ = &mut stop => break,
+            query = queryable.recv_async() => match query {
+                Ok(query) => answer(&query, &store).await,
+                Err(_) => break,
+            },
+        }
+    }
+    if let Err(e) = queryable.undeclare().await {
+        warn!("cannot undeclare the keyframe queryable: {e}");
+    }
+}
+
+/// One `Keyframe` reply per held keyframe asked for; an error reply to a request that does not decode.
+async fn answer(query: &Query, store: &Mutex<Store>) {
+    let key = query.key_expr().clone();
+    let request = match decode(query) {
+        Ok(r) => r,
+        Err(e) => {
+            warn!("malformed KeyframeRequest on {key}: {e}");
+            if let Err(e) = query.reply_err(format!("malformed KeyframeRequest: {e}")).await {
+                warn!("cannot reply to a query on {key}: {e}");
+            }
+            return;
+        }
+    };
+    // A panic elsewhere cannot leave the store half-updated: insert and evict keep it consistent.
+    let held = store.lock().unwrap_or_else(PoisonError::into_inner).select(&request);
+    debug!("{key}: {} of the requested keyframes held", held.len());
+    for (seq, payload) in held {
+        if let Err(e) = query.reply(key.clone(), payload).await {
+            warn!("cannot reply keyframe {seq} on {key}: {e}");
+            return;
+        }
+    }
+}
+
+/// The request in a query; no payload is the empty request.
+fn decode(query: &Query) -> Result<KeyframeRequest, prost::DecodeError> {
+    match query.payload() {
+        Some(payload) => KeyframeRequest::decode(payload.to_bytes().as_ref()),
+        None => Ok(KeyframeRequest::default()),
+    }
+}

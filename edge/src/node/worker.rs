@@ -1,0 +1,156 @@
+//! The CPU-bound half of a node: reads the source, runs the odometry and encodes keyframes on a
+//! blocking thread, handing each registered scan to the async half through a bounded channel (a slow
+//! network slows the odometry down instead of filling memory).
+
+use std::time::{Duration, Instant};
+
+use nalgebra::Isometry3;
+use prost::Message;
+use proto::Fleet;
+use proto::codec::CodecConfig;
+use tokio::sync::mpsc;
+use tracing::{error, warn};
+
+use super::{NodeError, Rate};
+use crate::odometry::{Keyframe, Odometry};
+use crate::source::{Source, SourceScan};
+use crate::wire;
+
+/// One registered scan, as the async half needs it.
+#[derive(Debug)]
+pub(crate) struct Registered {
+    /// Sensor pose at the sweep end, odometry frame.
+    pub pose: Isometry3<f64>,
+    /// Sweep start, seconds.
+    pub stamp: f64,
+    /// Ground-truth pose, when the source knows it.
+    pub ground_truth: Option<Isometry3<f64>>,
+    /// The keyframe the scan made, encoded for the wire.
+    pub keyframe: Option<EncodedKeyframe>,
+}
+
+/// A keyframe's `emr.v1.Keyframe` protobuf encoding.
+#[derive(Debug)]
+pub(crate) struct EncodedKeyframe {
+    /// Sequence number.
+    pub seq: u64,
+    /// The message bytes.
+    pub payload: Vec<u8>,
+}
+
+/// Everything the blocking thread owns.
+pub(crate) struct Worker {
+    /// Where scans come from.
+    pub source: Source,
+    /// The robot's odometry.
+    pub odometry: Odometry,
+    /// Fleet named in the messages.
+    pub fleet: Fleet,
+    /// Robot id named in the messages.
+    pub robot: u32,
+    /// How keyframe clouds are compressed.
+    pub codec: CodecConfig,
+    /// How fast scans are read.
+    pub rate: Rate,
+}
+
+impl Worker {
+    /// Runs until the source ends or the receiver is closed (shutdown) or dropped.
+    pub(crate) fn run(mut self, tx: mpsc::Sender<Registered>) -> Result<(), NodeError> {
+        let mut pacer = Pacer::new(self.rate);
+        while let Some(scan) = self.next_scan() {
+            if !pacer.wait_for(scan.stamp, &tx) {
+                break;
+            }
+            let registered = self.register(scan)?;
+            if tx.blocking_send(registered).is_err() {
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    /// The next good scan; `None` at the end of the source or after a fatal read error.
+    fn next_scan(&mut self) -> Option<SourceScan> {
+        loop {
+            match self.source.next()? {
+                Ok(scan) => return Some(scan),
+                Err(e) if !e.is_fatal() => warn!("robot {}: skipped a scan: {e}", self.robot),
+                Err(e) => {
+                    error!("robot {}: {e}; the source ends here", self.robot);
+                    return None;
+                }
+            }
+        }
+    }
+
+    /// Odometry on one scan, and its keyframe's message if it made one.
+    fn register(&mut self, scan: SourceScan) -> Result<Registered, NodeError> {
+        let frame =
+            self.odometry.register(&scan.cloud).map_err(|source| NodeError::Odometry { index: scan.index, source })?;
+        let keyframe = frame.keyframe.map(|kf| self.encode(&kf, scan.stamp)).transpose()?;
+        Ok(Registered { pose: frame.pose, stamp: scan.stamp, ground_truth: scan.ground_truth, keyframe })
+    }
+
+    fn encode(&self, kf: &Keyframe, stamp: f64) -> Result<EncodedKeyframe, NodeError> {
+        let msg = wire::keyframe_message(&self.fleet, self.robot, kf, stamp, &self.codec)
+            .map_err(|source| NodeError::Encode { seq: kf.seq, source })?;
+        Ok(EncodedKeyframe { seq: kf.seq, payload: msg.encode_to_vec() })
+    }
+}
+
+/// Paces scans by their stamps (realtime) or not at all.
+struct Pacer {
+    rate: Rate,
+    start: Option<(Instant, f64)>,
+}
+
+/// Longest sleep between checks for shutdown.
+const PACE_SLICE: Duration = Duration::from_millis(20);
+
+impl Pacer {
+    fn new(rate: Rate) -> Self {
+        Pacer { rate, start: None }
+    }
+
+    /// Waits until the scan stamped `stamp` is due; false when the receiver went away meanwhile.
+    fn wait_for<T>(&mut self, stamp: f64, tx: &mpsc::Sender<T>) -> bool {
+        if self.rate == Rate::Max {
+            return !tx.is_closed();
+        }
+        let (start, first) = *self.start.get_or_insert((Instant::now(), stamp));
+        // Stamps that go backwards or are not finite are played at once rather than waited for.
+        let offset = Duration::try_from_secs_f64(stamp - first).unwrap_or_default();
+        let due = start + offset;
+        loop {
+            if tx.is_closed() {
+                return false;
+            }
+            let left = due.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return true;
+            }
+            std::thread::sleep(left.min(PACE_SLICE));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn realtime_waits_for_the_stamp_and_gives_up_on_shutdown() {
+        let (tx, mut rx) = mpsc::channel::<()>(1);
+        let mut pacer = Pacer::new(Rate::Realtime);
+        let start = Instant::now();
+        assert!(pacer.wait_for(100.0, &tx) && pacer.wait_for(100.06, &tx));
+        assert!(start.elapsed() >= Duration::from_millis(60), "{:?}", start.elapsed());
+        // A stamp far ahead: closing the receiver ends the wait at once.
+        rx.close();
+        let start = Instant::now();
+        assert!(!pacer.wait_for(1000.0, &tx));
+        assert!(start.elapsed() < Duration::from_millis(100));
+        assert!(!Pacer::new(Rate::Max).wait_for(1000.0, &tx));
+    }
+}
