@@ -3,20 +3,26 @@
 
 use std::path::{Path, PathBuf};
 
+use std::time::Duration;
+
 use anyhow::{Context, Result, bail};
+use bus::Network;
 use clap::{Parser, Subcommand, ValueEnum};
+use edge::node::Rate;
 use nalgebra::Isometry3;
 use proto::{Fleet, keyexpr};
+use station::demo::{self, DemoConfig, DemoReport};
 use station::merge::files::{self, AlignMethod, Alignment};
 use station::merge::{MapStatus, MergeConfig, MergeReport};
 use station::pairwise::bench::{bench_merge_files, read_transform};
+use station::service::{self, StationConfig, client};
 
 /// The central station of EMR-FLOAM multi-robot LiDAR SLAM.
 ///
 /// The station collects the keyframes that every robot of a fleet streams over Zenoh, finds where
 /// the robots' maps overlap, fuses them into one global 3D map and publishes it with a confidence
-/// score per robot. Today it offers map merging and registration on files and the inspection tools
-/// below; the networked service arrives with the next releases.
+/// score per robot (`run`); `watch` and `save` inspect a running system, the other commands work on
+/// files.
 #[derive(Parser, Debug)]
 #[command(name = "emr-station", version, about, long_about)]
 struct Cli {
@@ -87,6 +93,83 @@ enum Command {
         /// Write the transformed SOURCE cloud here (.ply binary, .pcd binary or .bin by extension).
         #[arg(long)]
         out: Option<PathBuf>,
+    },
+    /// The whole system on this machine, no set-up: the simulated two-robot warehouse, both edges
+    /// and the station as tasks of one process talking over Zenoh on loopback. Ends by writing
+    /// OUT/global_map.ply, OUT/placements.json, per robot its trajectory (estimated and ground
+    /// truth, TUM, in the global frame) and OUT/summary.json (confidences, ATE per robot, timings).
+    Demo {
+        /// Simulated scenario with two or more robots.
+        #[arg(long, default_value = "warehouse-large")]
+        scenario: String,
+        /// Robots of the scenario to run (1-based), comma-separated.
+        #[arg(long, value_delimiter = ',', default_value = "1,2")]
+        robots: Vec<u32>,
+        /// Scans per robot [default: the whole scenario].
+        #[arg(long)]
+        frames: Option<usize>,
+        /// Play scans at sensor speed (10 Hz) instead of as fast as the odometry goes.
+        #[arg(long)]
+        realtime: bool,
+        /// Output directory.
+        #[arg(long, default_value = "out/demo")]
+        out: PathBuf,
+    },
+    /// Run the station service: collect every robot of the fleet over Zenoh, merge their maps and
+    /// publish the global map (also answered to queries) and the station status. State persists
+    /// in DATA_DIR/station.redb; SIGINT or SIGTERM commits the last batch and exits 0.
+    Run {
+        /// Fleet name.
+        #[arg(long)]
+        fleet: String,
+        /// Where the database lives.
+        #[arg(long, default_value = "station-data")]
+        data_dir: PathBuf,
+        /// Merge preset: outdoor (0.4 m features) or indoor (0.1 m). Outdoor is the default even for
+        /// buildings: the robots' maps grow to whole floors, where 0.1 m features are slow (5 s per
+        /// merge of two warehouse halls) and find too few matches on maps bent by odometry drift.
+        #[arg(long, value_enum, default_value_t = Preset::Outdoor)]
+        preset: Preset,
+        /// Quiet time after the last change before a merge starts, milliseconds.
+        #[arg(long, default_value_t = 2000)]
+        debounce_ms: u64,
+        /// Longest a change waits for its merge, milliseconds.
+        #[arg(long, default_value_t = 10000)]
+        max_delay_ms: u64,
+        #[command(flatten)]
+        network: bus::NetworkArgs,
+    },
+    /// Print one line per sample on KEYEXPR (e.g. 'emr/demo/**'): key, message type and a summary.
+    /// Without network options, connects to tcp/127.0.0.1:7447.
+    Watch {
+        /// Key expression to subscribe to.
+        keyexpr: String,
+        /// Stop after this many samples.
+        #[arg(long)]
+        count: Option<usize>,
+        /// One JSON object per line.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        network: bus::NetworkArgs,
+    },
+    /// Fetch the latest global map from the fleet's station and write its cloud (.ply, .pcd or
+    /// .bin by extension). Without network options, connects to tcp/127.0.0.1:7447.
+    Save {
+        /// Fleet name.
+        #[arg(long)]
+        fleet: String,
+        /// The cloud file to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write the placements as JSON (per robot transform, confidence, status; tree edges).
+        #[arg(long)]
+        transforms: Option<PathBuf>,
+        /// How long to wait for the station, seconds.
+        #[arg(long, default_value_t = 10.0)]
+        timeout_s: f64,
+        #[command(flatten)]
+        network: bus::NetworkArgs,
     },
     /// Benchmarks.
     #[command(subcommand)]
@@ -167,6 +250,123 @@ fn main() -> Result<()> {
         Command::Bench(Bench::Merge { source, target, reference, runs, preset }) => {
             bench_merge(source, target, reference, runs, preset)?
         }
+        Command::Demo { scenario, robots, frames, realtime, out } => {
+            let config = DemoConfig {
+                scenario,
+                robots,
+                frames,
+                rate: if realtime { Rate::Realtime } else { Rate::Max },
+                out,
+                ..DemoConfig::new()
+            };
+            let report = runtime()?.block_on(demo::run(config, shutdown_signal()))?;
+            print_demo(&report);
+        }
+        Command::Run { fleet, data_dir, preset, debounce_ms, max_delay_ms, network } => {
+            let config = StationConfig {
+                data_dir: Some(data_dir),
+                merge: preset.config(),
+                debounce: Duration::from_millis(debounce_ms),
+                max_delay: Duration::from_millis(max_delay_ms),
+                ..StationConfig::new(Fleet::new(&fleet)?)
+            };
+            let rt = runtime()?;
+            rt.block_on(run_station(config, network.network(&[DEFAULT_PORT])))?;
+            // A merge still running on a blocking thread has nothing left to publish to.
+            rt.shutdown_timeout(Duration::from_secs(1));
+        }
+        Command::Watch { keyexpr, count, json, network } => {
+            runtime()?.block_on(watch(&keyexpr, count, json, client_network(&network)))?
+        }
+        Command::Save { fleet, out, transforms, timeout_s, network } => {
+            let timeout = Duration::try_from_secs_f64(timeout_s).context("--timeout-s")?;
+            let fleet = Fleet::new(&fleet)?;
+            runtime()?.block_on(save(&fleet, &out, transforms.as_deref(), timeout, client_network(&network)))?
+        }
+    }
+    Ok(())
+}
+
+/// The port a station listens on, and watch / save connect to, without network options.
+const DEFAULT_PORT: u16 = 7447;
+
+fn runtime() -> Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread().enable_all().build()?)
+}
+
+/// Without options a client connects to a station on the default port (rather than listening).
+fn client_network(args: &bus::NetworkArgs) -> Network {
+    match args.network(&[DEFAULT_PORT]) {
+        Network::Loopback { listen, connect } if args.listen.is_empty() && args.connect.is_empty() => {
+            Network::Loopback { listen: vec![], connect: listen.into_iter().chain(connect).collect() }
+        }
+        other => other,
+    }
+}
+
+async fn open(network: &Network) -> Result<zenoh::Session> {
+    network.open().await.with_context(|| bus::describe(network))
+}
+
+async fn run_station(config: StationConfig, network: Network) -> Result<()> {
+    let session = open(&network).await?;
+    tracing::info!("station for fleet {} on {}", config.fleet, bus::describe(&network));
+    let summary = service::run(session.clone(), config, shutdown_signal()).await?;
+    tracing::info!(
+        "stopped: {} keyframes from {} robots, {} merges, {} malformed payloads",
+        summary.keyframes.values().sum::<usize>(),
+        summary.keyframes.len(),
+        summary.merges,
+        summary.malformed
+    );
+    session.close().await.map_err(|e| anyhow::anyhow!("closing the zenoh session: {e}"))?;
+    Ok(())
+}
+
+/// Resolves on SIGINT or SIGTERM.
+async fn shutdown_signal() {
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+    let term = async {
+        match term.as_mut() {
+            Some(t) => {
+                t.recv().await;
+            }
+            None => std::future::pending().await,
+        }
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        () = term => {}
+    }
+}
+
+async fn watch(keyexpr: &str, count: Option<usize>, json: bool, network: Network) -> Result<()> {
+    let session = open(&network).await?;
+    let subscriber =
+        session.declare_subscriber(keyexpr).await.map_err(|e| anyhow::anyhow!("subscribing to {keyexpr}: {e}"))?;
+    let mut seen = 0;
+    while count.is_none_or(|n| seen < n) {
+        let Ok(sample) = subscriber.recv_async().await else { break };
+        let summary = client::summarize(sample.key_expr().as_str(), &sample.payload().to_bytes());
+        if json {
+            println!("{}", summary.to_json());
+        } else {
+            println!("{}", summary.to_line());
+        }
+        seen += 1;
+    }
+    Ok(())
+}
+
+async fn save(fleet: &Fleet, out: &Path, transforms: Option<&Path>, timeout: Duration, network: Network) -> Result<()> {
+    let session = open(&network).await?;
+    let (map, _) = client::fetch_global_map(&session, fleet, timeout).await?;
+    let cloud = client::global_map_cloud(&map).context("decoding the global map's cloud")?;
+    files::write_by_extension(out, &cloud)?;
+    println!("global map revision {} of fleet {fleet}: {} points in {}", map.revision, cloud.len(), out.display());
+    if let Some(path) = transforms {
+        let text = serde_json::to_string_pretty(&client::placements_json(&map))?;
+        std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
 }
@@ -297,4 +497,39 @@ fn print_info(path: &std::path::Path) -> Result<()> {
 
 fn yes_no(b: bool) -> &'static str {
     if b { "yes" } else { "no" }
+}
+
+/// The demo's results as a table.
+fn print_demo(report: &DemoReport) {
+    let map = &report.global_map;
+    println!(
+        "global map revision {}: {} points, reference robot {}, {:.1} s wall, {} merges (last {:.0} ms)",
+        map.revision,
+        map.cloud.as_ref().map_or(0, |c| c.points),
+        map.reference_robot,
+        report.wall_s,
+        report.merge_ms.len(),
+        report.merge_ms.last().copied().unwrap_or(0.0)
+    );
+    println!(
+        "robot  scans  keyframes  status    confidence  placement error   odometry ATE aligned/unaligned  global ATE"
+    );
+    for r in &report.robots {
+        let placement = r.placement_error.map_or("-".into(), |(m, d)| format!("{:.1} cm {:.2} deg", m * 100.0, d));
+        let global = r.global_ate.map_or("-".into(), |a| format!("{:.1} cm", a.rmse * 100.0));
+        println!(
+            "{:>5}  {:>5}  {:>9}  {:<8}  {:>10.3}  {:>15}   {:>13.1} / {:.1} cm        {global:>10}",
+            r.robot,
+            r.frames,
+            r.keyframes,
+            if r.merged { "merged" } else { "unmerged" },
+            r.confidence,
+            placement,
+            r.odometry_ate.0.rmse * 100.0,
+            r.odometry_ate.1.rmse * 100.0,
+        );
+    }
+    for path in &report.written {
+        println!("wrote {}", path.display());
+    }
 }

@@ -273,3 +273,25 @@ fn degenerate_inputs_to_merge() {
     let bad = MergeConfig { output_voxel: 0.0, ..MergeConfig::outdoor() };
     assert!(matches!(merge(&maps, &bad), Err(MergeError::Config(_))));
 }
+
+/// The station's live preset (`emr-station run` default: 0.4 m features, which whole-building maps
+/// built from odometry need) keeps the indoor scenarios' verdicts: large overlap merged, small
+/// never merged wrongly, identical halls refused.
+#[test]
+fn the_coarse_preset_keeps_the_indoor_verdicts() {
+    let config = MergeConfig::outdoor();
+    let large = sim_maps("warehouse-large", 10, 0.1);
+    let report = merge(&large.maps, &config).unwrap();
+    assert_eq!(report.merged(), 2, "{}", describe(&report));
+    let (t, r) = worst(&errors(&report, &large));
+    println!("warehouse-large, coarse preset: worst error {t:.4} m, {r:.4} deg");
+    assert!(t < 0.05 && r < 0.5, "{t} m, {r} deg");
+    let small = sim_maps("warehouse-small", 10, 0.1);
+    let report = merge(&small.maps, &config).unwrap();
+    let (t, r) = worst(&errors(&report, &small));
+    println!("warehouse-small, coarse preset: merged {} of 2, worst error {t:.4} m, {r:.4} deg", report.merged());
+    assert!(t < 0.05 && r < 0.5, "merged wrongly: {t} m, {r} deg");
+    let aisles = sim_maps("aisles", 10, 0.1);
+    let report = merge(&aisles.maps, &config).unwrap();
+    assert_eq!(report.merged(), 1, "only the reference: {}", describe(&report));
+}

@@ -1,1 +1,281 @@
-//! System tests live in tests/.
+//! Harness for the system tests: the real `emr-edge` and `emr-station` binaries as processes on
+//! 127.0.0.1, an observer session, and the simulator's ground truth to judge the result.
+//!
+//! The binaries are the ones `cargo test --workspace` builds next to the test executables
+//! (`target/<profile>/emr-edge`); run the whole workspace's tests, or `cargo build --bins` first.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use edge::sim::{Scenario, SimConfig, Simulator};
+use nalgebra::Isometry3;
+use prost::Message;
+use proto::{Fleet, GlobalMap, MergeStatus};
+
+/// Path of one of the workspace's binaries, built beside the running test executable.
+pub fn binary(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    // target/<profile>/deps/<test> -> target/<profile>/<name>
+    let dir = exe.parent().and_then(Path::parent).expect("test executable in target/<profile>/deps");
+    let path = dir.join(name);
+    assert!(
+        path.exists(),
+        "{} is missing: run `cargo test --workspace` (or `cargo build --bins`) first",
+        path.display()
+    );
+    path
+}
+
+/// A child process killed when dropped, with its stderr kept in a file for the failure message.
+pub struct Process {
+    /// What it is, for messages.
+    pub name: String,
+    child: Child,
+    log: PathBuf,
+}
+
+impl Process {
+    /// Starts `binary args...`, its stderr into `log_dir/<name>.log` (appended: restarts share it).
+    pub fn start(name: &str, binary: &Path, args: &[String], log_dir: &Path) -> Process {
+        let log = log_dir.join(format!("{name}.log"));
+        let file = std::fs::OpenOptions::new().create(true).append(true).open(&log).expect("log file");
+        let child = Command::new(binary)
+            .args(args)
+            .env("RUST_LOG", "info")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(file)
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {}: {e}", binary.display()));
+        Process { name: name.to_owned(), child, log }
+    }
+
+    /// SIGKILL (`kill -9`): no chance to flush anything.
+    pub fn kill9(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    /// SIGTERM, then waits up to `timeout` for the exit status.
+    pub fn terminate(&mut self, timeout: Duration) -> Option<std::process::ExitStatus> {
+        let _ = Command::new("kill").arg("-TERM").arg(self.child.id().to_string()).status();
+        let deadline = Instant::now() + timeout;
+        while Instant::now() < deadline {
+            if let Ok(Some(status)) = self.child.try_wait() {
+                return Some(status);
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        None
+    }
+
+    /// True while the process runs.
+    pub fn running(&mut self) -> bool {
+        matches!(self.child.try_wait(), Ok(None))
+    }
+
+    /// The last lines of its log, for assertion messages.
+    pub fn tail(&self) -> String {
+        let text = std::fs::read_to_string(&self.log).unwrap_or_default();
+        let lines: Vec<&str> = text.lines().collect();
+        format!(
+            "--- {} (last lines of {}) ---\n{}",
+            self.name,
+            self.log.display(),
+            lines[lines.len().saturating_sub(40)..].join("\n")
+        )
+    }
+}
+
+impl Drop for Process {
+    fn drop(&mut self) {
+        self.kill9();
+    }
+}
+
+/// The command line of a station on `port` (it listens; everyone connects to it).
+pub fn station_args(fleet: &str, port: u16, data_dir: &Path) -> Vec<String> {
+    vec![
+        "run".into(),
+        "--fleet".into(),
+        fleet.into(),
+        "--data-dir".into(),
+        data_dir.display().to_string(),
+        "--debounce-ms".into(),
+        "1000".into(),
+        "--listen".into(),
+        bus::endpoint(port),
+    ]
+}
+
+/// The command line of an edge replaying a simulated robot, connecting to the station's port.
+pub fn edge_args(
+    fleet: &str,
+    scenario: &str,
+    robot: u32,
+    frames: usize,
+    station_port: u16,
+    summary: &Path,
+) -> Vec<String> {
+    vec![
+        "run".into(),
+        "--fleet".into(),
+        fleet.into(),
+        "--robot".into(),
+        robot.to_string(),
+        "--source".into(),
+        format!("sim:{scenario}:{robot}"),
+        "--max-frames".into(),
+        frames.to_string(),
+        "--rate".into(),
+        "max".into(),
+        "--summary".into(),
+        summary.display().to_string(),
+        "--connect".into(),
+        bus::endpoint(station_port),
+    ]
+}
+
+/// What `emr-edge run --summary` writes once its source is exhausted.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EdgeSummary {
+    /// Scans read.
+    pub frames: u64,
+    /// Keyframes produced.
+    pub keyframes: u64,
+}
+
+/// Waits until `path` holds an edge summary, or panics after `timeout` with the processes' logs.
+pub fn wait_summary(path: &Path, timeout: Duration, procs: &mut [&mut Process]) -> EdgeSummary {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(s) = read_summary(path) {
+            return s;
+        }
+        assert!(Instant::now() < deadline, "no edge summary at {} in {timeout:?}\n{}", path.display(), tails(procs));
+        for p in procs.iter_mut() {
+            assert!(p.running(), "{} stopped early\n{}", p.name, p.tail());
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+fn read_summary(path: &Path) -> Option<EdgeSummary> {
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()?;
+    Some(EdgeSummary { frames: v["frames"].as_u64()?, keyframes: v["keyframes"].as_u64()? })
+}
+
+/// The logs of all processes, for a failure message.
+pub fn tails(procs: &[&mut Process]) -> String {
+    procs.iter().map(|p| p.tail()).collect::<Vec<_>>().join("\n")
+}
+
+/// An observer: a loopback peer connected to the station, to read what the station publishes.
+pub struct Observer {
+    /// Its runtime (the tests themselves are synchronous).
+    pub runtime: tokio::runtime::Runtime,
+    /// Its session.
+    pub session: zenoh::Session,
+    fleet: Fleet,
+}
+
+impl Observer {
+    /// Connects to the station's port.
+    pub fn connect(fleet: &str, station_port: u16) -> Observer {
+        let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build().unwrap();
+        let session =
+            runtime.block_on(bus::Network::loopback_ports(&[], &[station_port]).open()).expect("observer session");
+        Observer { runtime, session, fleet: Fleet::new(fleet).unwrap() }
+    }
+
+    /// The station's latest global map, from its queryable, if it answers within a second.
+    pub fn latest_global_map(&self) -> Option<GlobalMap> {
+        self.runtime.block_on(async {
+            let replies =
+                self.session.get(proto::keyexpr::global_map(&self.fleet)).timeout(Duration::from_secs(1)).await.ok()?;
+            let mut latest: Option<GlobalMap> = None;
+            while let Ok(reply) = replies.recv_async().await {
+                if let Ok(sample) = reply.result()
+                    && let Ok(map) = GlobalMap::decode(sample.payload().to_bytes().as_ref())
+                    && latest.as_ref().is_none_or(|l| map.revision > l.revision)
+                {
+                    latest = Some(map);
+                }
+            }
+            latest
+        })
+    }
+
+    /// Polls the station until `done` holds for its global map; panics with the logs after `timeout`.
+    pub fn wait_global_map(
+        &self,
+        timeout: Duration,
+        procs: &mut [&mut Process],
+        done: impl Fn(&GlobalMap) -> bool,
+    ) -> GlobalMap {
+        let deadline = Instant::now() + timeout;
+        let mut last = None;
+        loop {
+            if let Some(map) = self.latest_global_map() {
+                if done(&map) {
+                    return map;
+                }
+                last = Some(describe(&map));
+            }
+            assert!(
+                Instant::now() < deadline,
+                "no satisfying global map in {timeout:?}; last seen: {last:?}\n{}",
+                tails(procs)
+            );
+            std::thread::sleep(Duration::from_millis(500));
+        }
+    }
+}
+
+/// One line about a global map, for messages.
+pub fn describe(map: &GlobalMap) -> String {
+    let robots: Vec<String> = map
+        .robots
+        .iter()
+        .map(|r| format!("robot {} {:?} conf {:.3} kf {}", r.robot, r.status(), r.confidence, r.keyframes))
+        .collect();
+    format!("revision {} reference {} [{}]", map.revision, map.reference_robot, robots.join(", "))
+}
+
+/// True when every robot in `keyframes` (robot, count) is in the map with that many keyframes.
+pub fn holds_all(map: &GlobalMap, keyframes: &[(u32, u64)]) -> bool {
+    keyframes.iter().all(|(robot, n)| map.robots.iter().any(|r| r.robot == *robot && r.keyframes == *n))
+}
+
+/// True when every robot of the map is merged.
+pub fn all_merged(map: &GlobalMap) -> bool {
+    !map.robots.is_empty() && map.robots.iter().all(|r| r.status() == MergeStatus::Merged)
+}
+
+/// A robot's transform in the map.
+pub fn placement(map: &GlobalMap, robot: u32) -> Isometry3<f64> {
+    let r = map.robots.iter().find(|r| r.robot == robot).unwrap_or_else(|| panic!("robot {robot} not in the map"));
+    Isometry3::try_from(r.transform.as_ref().expect("placement transform")).expect("valid transform")
+}
+
+/// The true placement of `robot`'s odometry frame in `reference`'s: both frames are the sensor at
+/// the end of the robot's first sweep, whose world pose the simulator knows exactly.
+pub fn true_placement(scenario: &str, reference: u32, robot: u32) -> Isometry3<f64> {
+    let first = |r: u32| {
+        let scenario = Scenario::by_name(scenario).expect("scenario");
+        Simulator::new(scenario, r as usize - 1, SimConfig::default()).expect("simulator").ground_truth(0)
+    };
+    first(reference).inverse() * first(robot)
+}
+
+/// Translation (m) and rotation (deg) between two transforms.
+pub fn difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
+    let d = a.inverse() * b;
+    (d.translation.vector.norm(), d.rotation.angle().to_degrees())
+}
+
+/// A fresh scratch directory, removed at the end of the test.
+pub fn scratch() -> tempfile::TempDir {
+    tempfile::Builder::new().prefix("emr-system-").tempdir().expect("scratch dir")
+}

@@ -1,0 +1,372 @@
+//! `emr-station demo`: the whole system in one process, with no set-up.
+//!
+//! Two edges ([`edge::node`]) replay the simulated two-robot warehouse and a station
+//! ([`crate::service`]) merges their maps, each on its own zenoh session, peers on loopback: the
+//! station listens on a free 127.0.0.1 port and the edges connect to it. When both robots' scans
+//! are done and the station has published a global map built from every keyframe, the demo stops
+//! everything and writes its results, judged against the simulator's ground truth.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use cloud::trajectory::{self, Ate, Trajectory};
+use edge::node::{self, NodeConfig, NodeSummary, Rate, SourceEnd};
+use edge::source::SourceSpec;
+use nalgebra::Isometry3;
+use proto::{Fleet, GlobalMap, MergeStatus};
+use serde_json::{Value, json};
+use tokio::sync::{mpsc, oneshot};
+use tracing::info;
+
+use crate::merge::MergeConfig;
+use crate::merge::files::{self, FilesError};
+use crate::service::client::{global_map_cloud, placements_json};
+use crate::service::{Station, StationConfig, StationError};
+
+/// What the demo runs.
+#[derive(Clone, Debug)]
+pub struct DemoConfig {
+    /// Simulated scenario (default `warehouse-large`: two robots, both halls).
+    pub scenario: String,
+    /// Robots of the scenario to run, 1-based (default 1 and 2).
+    pub robots: Vec<u32>,
+    /// Scans per robot (default: the whole scenario).
+    pub frames: Option<usize>,
+    /// Scan pacing (default as fast as the odometry goes).
+    pub rate: Rate,
+    /// Where the results go (default `out/demo`).
+    pub out: PathBuf,
+    /// Station settings (default: the outdoor merge preset, as `emr-station run`; 1 s debounce; in memory).
+    pub station: StationConfig,
+}
+
+impl DemoConfig {
+    /// The defaults above.
+    pub fn new() -> Self {
+        let fleet = Fleet::new("demo").expect("valid fleet name");
+        let station = StationConfig {
+            merge: MergeConfig::outdoor(),
+            debounce: Duration::from_secs(1),
+            ..StationConfig::new(fleet)
+        };
+        DemoConfig {
+            scenario: "warehouse-large".into(),
+            robots: vec![1, 2],
+            frames: None,
+            rate: Rate::Max,
+            out: PathBuf::from("out/demo"),
+            station,
+        }
+    }
+}
+
+impl Default for DemoConfig {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Why the demo failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DemoError {
+    /// No free loopback port or a session would not open.
+    #[error("network: {0}")]
+    Network(String),
+    /// The station failed.
+    #[error(transparent)]
+    Station(#[from] StationError),
+    /// An edge failed.
+    #[error("robot {robot}: {source}")]
+    Edge {
+        /// The robot.
+        robot: u32,
+        /// What went wrong.
+        source: node::NodeError,
+    },
+    /// Interrupted before the global map was complete.
+    #[error("interrupted before the global map held every keyframe")]
+    Interrupted,
+    /// The results could not be written.
+    #[error("writing {path}: {message}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+/// One robot's results.
+#[derive(Clone, Debug)]
+pub struct RobotResult {
+    /// Robot id.
+    pub robot: u32,
+    /// Scans and keyframes the edge made.
+    pub frames: usize,
+    /// Keyframes.
+    pub keyframes: u64,
+    /// Odometry ATE in the robot's own frame, after SE(3) alignment and as estimated.
+    pub odometry_ate: (Ate, Ate),
+    /// ATE of the trajectory placed in the global frame against the truth in that frame (merge
+    /// and odometry errors together, no alignment), when the robot was merged.
+    pub global_ate: Option<Ate>,
+    /// Placement error against the truth: metres and degrees.
+    pub placement_error: Option<(f64, f64)>,
+    /// Published confidence and status.
+    pub confidence: f64,
+    /// Merged or not.
+    pub merged: bool,
+}
+
+/// What the demo did.
+#[derive(Clone, Debug)]
+pub struct DemoReport {
+    /// Per robot.
+    pub robots: Vec<RobotResult>,
+    /// The final global map.
+    pub global_map: GlobalMap,
+    /// Wall time of the whole run, seconds.
+    pub wall_s: f64,
+    /// Wall time of each merge, milliseconds.
+    pub merge_ms: Vec<f64>,
+    /// Files written.
+    pub written: Vec<PathBuf>,
+}
+
+/// Runs the demo until the global map holds every keyframe or `interrupt` resolves.
+pub async fn run(config: DemoConfig, interrupt: impl Future<Output = ()>) -> Result<DemoReport, DemoError> {
+    let started = Instant::now();
+    let port = bus::free_port().map_err(|e| DemoError::Network(e.to_string()))?;
+    let station_session = open(&bus::Network::loopback_ports(&[port], &[])).await?;
+    let station = Station::start(station_session, config.station.clone()).await?;
+    info!("station listening on {}", bus::endpoint(port));
+    let (done_tx, mut done_rx) = mpsc::unbounded_channel();
+    let mut edges = Vec::new();
+    for &robot in &config.robots {
+        edges.push(start_edge(&config, robot, port, done_tx.clone()).await?);
+    }
+    let mut interrupt = std::pin::pin!(interrupt);
+    let complete = tokio::select! {
+        keyframes = wait_sources(&mut done_rx, config.robots.len()) => wait_station(&station, &keyframes).await,
+        () = &mut interrupt => false,
+    };
+    let mut summaries = BTreeMap::new();
+    for edge in edges {
+        let _ = edge.stop.send(());
+        let summary = edge.task.await.map_err(|e| DemoError::Network(e.to_string()))?;
+        summaries.insert(edge.robot, summary.map_err(|source| DemoError::Edge { robot: edge.robot, source })?);
+    }
+    let station = station.stop().await?;
+    let global_map = match (complete, station.global_map) {
+        (true, Some(map)) => map,
+        _ => return Err(DemoError::Interrupted),
+    };
+    let robots = judge(&config, &summaries, &global_map);
+    let written = write_results(&config, &summaries, &global_map, &robots)?;
+    Ok(DemoReport { robots, global_map, wall_s: started.elapsed().as_secs_f64(), merge_ms: station.merge_ms, written })
+}
+
+/// A running edge.
+struct EdgeTask {
+    robot: u32,
+    stop: oneshot::Sender<()>,
+    task: tokio::task::JoinHandle<Result<NodeSummary, node::NodeError>>,
+}
+
+async fn open(network: &bus::Network) -> Result<zenoh::Session, DemoError> {
+    network.open().await.map_err(|e| DemoError::Network(e.to_string()))
+}
+
+/// Starts one robot's edge on its own session, connected to the station.
+async fn start_edge(
+    config: &DemoConfig,
+    robot: u32,
+    port: u16,
+    done: mpsc::UnboundedSender<(u32, u64)>,
+) -> Result<EdgeTask, DemoError> {
+    let session = open(&bus::Network::loopback_ports(&[], &[port])).await?;
+    let source = SourceSpec::Sim { scenario: config.scenario.clone(), robot };
+    let node_config = NodeConfig {
+        max_frames: config.frames,
+        rate: config.rate,
+        on_source_end: Some(SourceEnd(Arc::new(move |s: &NodeSummary| {
+            let _ = done.send((robot, s.keyframes));
+        }))),
+        ..NodeConfig::new(config.station.fleet.clone(), robot, source)
+    };
+    let (stop, stopped) = oneshot::channel();
+    let task = tokio::spawn(async move {
+        let summary = node::run(&session, node_config, async {
+            let _ = stopped.await;
+        })
+        .await;
+        let _ = session.close().await;
+        summary
+    });
+    Ok(EdgeTask { robot, stop, task })
+}
+
+/// Waits until every robot's source has ended; returns each robot's keyframe count.
+async fn wait_sources(done: &mut mpsc::UnboundedReceiver<(u32, u64)>, robots: usize) -> BTreeMap<u32, u64> {
+    let mut keyframes = BTreeMap::new();
+    while keyframes.len() < robots {
+        match done.recv().await {
+            Some((robot, n)) => {
+                info!("robot {robot}: all scans done, {n} keyframes");
+                keyframes.insert(robot, n);
+            }
+            None => break,
+        }
+    }
+    keyframes
+}
+
+/// Waits until the station holds every keyframe and has published a map built from them all.
+async fn wait_station(station: &Station, keyframes: &BTreeMap<u32, u64>) -> bool {
+    let mut progress = station.progress();
+    loop {
+        let ready = {
+            let p = progress.borrow_and_update();
+            p.up_to_date() && keyframes.iter().all(|(r, n)| p.keyframes.get(r).is_some_and(|&k| k as u64 == *n))
+        };
+        if ready {
+            return true;
+        }
+        if progress.changed().await.is_err() {
+            return false;
+        }
+    }
+}
+
+/// Scores each robot against the simulator's truth.
+fn judge(config: &DemoConfig, summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotResult> {
+    let reference_start = summaries.get(&map.reference_robot).and_then(|s| s.ground_truth.first().copied().flatten());
+    summaries
+        .iter()
+        .map(|(&robot, s)| {
+            let placement = map.robots.iter().find(|p| p.robot == robot);
+            let merged = placement.is_some_and(|p| p.status() == MergeStatus::Merged);
+            let transform = placement.and_then(|p| p.transform.as_ref()).and_then(|t| Isometry3::try_from(t).ok());
+            let truth = truth_in_own_frame(s);
+            let odometry_ate = (ate(&truth, &s.poses, true), ate(&truth, &s.poses, false));
+            let (global_ate, placement_error) = match (merged, transform, reference_start, s.ground_truth.first()) {
+                (true, Some(t), Some(g_ref), Some(Some(g0))) => {
+                    let true_t = g_ref.inverse() * g0;
+                    let placed: Vec<_> = s.poses.iter().map(|p| t * p).collect();
+                    let true_global: Vec<_> = truth.iter().map(|p| true_t * p).collect();
+                    let d = t.inverse() * true_t;
+                    (
+                        Some(ate(&true_global, &placed, false)),
+                        Some((d.translation.vector.norm(), d.rotation.angle().to_degrees())),
+                    )
+                }
+                _ => (None, None),
+            };
+            let _ = config;
+            RobotResult {
+                robot,
+                frames: s.frames,
+                keyframes: s.keyframes,
+                odometry_ate,
+                global_ate,
+                placement_error,
+                confidence: placement.map_or(0.0, |p| p.confidence),
+                merged,
+            }
+        })
+        .collect()
+}
+
+/// Ground truth relative to the first pose: the robot's odometry frame.
+fn truth_in_own_frame(s: &NodeSummary) -> Vec<Isometry3<f64>> {
+    let first = s.ground_truth.first().copied().flatten().unwrap_or_else(Isometry3::identity);
+    s.ground_truth.iter().map(|g| first.inverse() * g.unwrap_or(first)).collect()
+}
+
+fn ate(truth: &[Isometry3<f64>], est: &[Isometry3<f64>], align: bool) -> Ate {
+    trajectory::ate(truth, est, align).unwrap_or(Ate { rmse: f64::NAN, mean: f64::NAN, max: f64::NAN, pairs: 0 })
+}
+
+/// Writes `out/`: global_map.ply, placements.json, per robot the estimated and true trajectories
+/// (TUM, in the global frame when merged, else the robot's own) and summary.json.
+fn write_results(
+    config: &DemoConfig,
+    summaries: &BTreeMap<u32, NodeSummary>,
+    map: &GlobalMap,
+    robots: &[RobotResult],
+) -> Result<Vec<PathBuf>, DemoError> {
+    let out = &config.out;
+    std::fs::create_dir_all(out).map_err(|e| write_error(out, e))?;
+    let mut written = Vec::new();
+    let cloud = global_map_cloud(map).map_err(|e| write_error(out, e))?;
+    let ply = out.join("global_map.ply");
+    files::write_by_extension(&ply, &cloud).map_err(|e: FilesError| write_error(&ply, e))?;
+    written.push(ply);
+    let reference_start = summaries.get(&map.reference_robot).and_then(|s| s.ground_truth.first().copied().flatten());
+    for (robot, s) in summaries {
+        let placement = map
+            .robots
+            .iter()
+            .find(|p| p.robot == *robot && p.status() == MergeStatus::Merged)
+            .and_then(|p| p.transform.as_ref())
+            .and_then(|t| Isometry3::try_from(t).ok());
+        let frame = match (placement, reference_start, s.ground_truth.first().copied().flatten()) {
+            (Some(t), Some(g_ref), Some(g0)) => Some((t, g_ref.inverse() * g0)),
+            _ => None,
+        };
+        let (est_t, true_t) = frame.unwrap_or((Isometry3::identity(), Isometry3::identity()));
+        let truth = truth_in_own_frame(s);
+        let est = Trajectory { poses: s.poses.iter().map(|p| est_t * p).collect(), stamps: Some(s.stamps.clone()) };
+        let gt = Trajectory { poses: truth.iter().map(|p| true_t * p).collect(), stamps: Some(s.stamps.clone()) };
+        for (name, t) in [("estimated", est), ("ground_truth", gt)] {
+            let path = out.join(format!("robot{robot}_{name}_tum.txt"));
+            std::fs::write(&path, t.to_tum()).map_err(|e| write_error(&path, e))?;
+            written.push(path);
+        }
+    }
+    let path = out.join("placements.json");
+    write_json(&path, &placements_json(map))?;
+    written.push(path);
+    let path = out.join("summary.json");
+    write_json(&path, &summary_json(config, map, robots))?;
+    written.push(path);
+    Ok(written)
+}
+
+fn summary_json(config: &DemoConfig, map: &GlobalMap, robots: &[RobotResult]) -> Value {
+    let ate_json = |a: &Ate| json!({"rmse_m": a.rmse, "mean_m": a.mean, "max_m": a.max});
+    let robots: Vec<Value> = robots
+        .iter()
+        .map(|r| {
+            json!({
+                "robot": r.robot,
+                "scans": r.frames,
+                "keyframes": r.keyframes,
+                "merged": r.merged,
+                "confidence": r.confidence,
+                "placement_error": r.placement_error.map(|(m, d)| json!({"m": m, "deg": d})),
+                "odometry_ate": {"aligned": ate_json(&r.odometry_ate.0), "unaligned": ate_json(&r.odometry_ate.1)},
+                "global_ate_unaligned": r.global_ate.as_ref().map(ate_json),
+            })
+        })
+        .collect();
+    json!({
+        "scenario": config.scenario,
+        "fleet": config.station.fleet.as_str(),
+        "revision": map.revision,
+        "reference_robot": map.reference_robot,
+        "global_map_points": map.cloud.as_ref().map_or(0, |c| c.points),
+        "robots": robots,
+    })
+}
+
+fn write_json(path: &Path, value: &Value) -> Result<(), DemoError> {
+    let text = serde_json::to_string_pretty(value).expect("JSON values serialise");
+    std::fs::write(path, text).map_err(|e| write_error(path, e))
+}
+
+fn write_error(path: &Path, e: impl std::fmt::Display) -> DemoError {
+    DemoError::Write { path: path.to_owned(), message: e.to_string() }
+}

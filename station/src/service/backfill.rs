@@ -1,0 +1,89 @@
+//! Which keyframes to ask a robot for, and when. Pure: the caller brings the state and the clock.
+//!
+//! One request per robot is outstanding at a time, so a burst of gaps cannot spawn a query storm;
+//! wants that arrive meanwhile are kept and served when it completes. A robot that no longer holds
+//! a missing keyframe is not asked for the same gaps again before `retry` has passed.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::time::{Duration, Instant};
+
+use proto::KeyframeRequest;
+
+use super::fleet_state::FleetState;
+
+/// Most sequence numbers listed in one request (the rest follow in the next one).
+pub const MAX_SEQS_PER_REQUEST: usize = 4096;
+
+/// Why the station wants keyframes from a robot.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Want {
+    /// A keyframe arrived past a gap: ask for the gaps.
+    Gaps,
+    /// The robot (re)appeared: ask for the gaps and everything after the newest keyframe held.
+    Everything,
+}
+
+/// The backfill planner of one fleet.
+#[derive(Clone, Debug)]
+pub struct Backfill {
+    retry: Duration,
+    in_flight: BTreeSet<u32>,
+    wanted: BTreeMap<u32, Want>,
+    /// The gaps last asked for per robot, and when.
+    last_gaps: BTreeMap<u32, (Vec<u64>, Instant)>,
+}
+
+impl Backfill {
+    /// A planner that repeats a request for the same gaps at most every `retry`.
+    pub fn new(retry: Duration) -> Self {
+        Self { retry, in_flight: BTreeSet::new(), wanted: BTreeMap::new(), last_gaps: BTreeMap::new() }
+    }
+
+    /// Notes that keyframes are wanted from `robot`.
+    pub fn want(&mut self, robot: u32, want: Want) {
+        let w = self.wanted.entry(robot).or_insert(want);
+        *w = (*w).max(want);
+    }
+
+    /// The requests to send now: one per robot with a want and no request outstanding.
+    pub fn requests(&mut self, state: &FleetState, now: Instant) -> Vec<(u32, KeyframeRequest)> {
+        let ready: Vec<(u32, Want)> =
+            self.wanted.iter().filter(|(r, _)| !self.in_flight.contains(r)).map(|(&r, &w)| (r, w)).collect();
+        let mut out = Vec::new();
+        for (robot, want) in ready {
+            self.wanted.remove(&robot);
+            if let Some(request) = self.request(state, robot, want, now) {
+                self.in_flight.insert(robot);
+                out.push((robot, request));
+            }
+        }
+        out
+    }
+
+    /// The request for `robot`, or `None` when there is nothing (new) to ask for.
+    fn request(&mut self, state: &FleetState, robot: u32, want: Want, now: Instant) -> Option<KeyframeRequest> {
+        let mut seqs = state.missing(robot);
+        seqs.truncate(MAX_SEQS_PER_REQUEST);
+        let from_seq = match want {
+            Want::Everything => Some(state.robot(robot).and_then(|r| r.max_seq()).map_or(0, |s| s + 1)),
+            Want::Gaps => None,
+        };
+        let asked_lately =
+            self.last_gaps.get(&robot).is_some_and(|(gaps, at)| *gaps == seqs && now.duration_since(*at) < self.retry);
+        if from_seq.is_none() && (seqs.is_empty() || asked_lately) {
+            return None;
+        }
+        self.last_gaps.insert(robot, (seqs.clone(), now));
+        Some(KeyframeRequest { seqs, from_seq })
+    }
+
+    /// The request to `robot` has completed (all replies in, or timed out).
+    pub fn done(&mut self, robot: u32) {
+        self.in_flight.remove(&robot);
+    }
+
+    /// Requests outstanding.
+    pub fn in_flight(&self) -> usize {
+        self.in_flight.len()
+    }
+}

@@ -1,0 +1,182 @@
+//! What the station holds for each robot of its fleet: keyframes by sequence number (the bytes as
+//! received, plus what was decoded from them) and the latest optimised poses. Pure: no I/O.
+//!
+//! Every insertion is idempotent, so live samples, backfill replies and a reload from the database
+//! all go through the same path in any order.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use cloud::PointCloud;
+use nalgebra::Isometry3;
+
+/// A keyframe checked and decoded by [`super::ingest`].
+#[derive(Clone, Debug)]
+pub struct ReceivedKeyframe {
+    /// Robot id (the key expression's and the message's, which agree).
+    pub robot: u32,
+    /// Sequence number.
+    pub seq: u64,
+    /// The protobuf `Keyframe` exactly as received: what is persisted and what a conflict compares.
+    pub bytes: Arc<[u8]>,
+    /// The odometry pose the robot sent with it.
+    pub odom_pose: Isometry3<f64>,
+    /// The decoded cloud, positions only, in the keyframe's sensor frame.
+    pub cloud: Arc<PointCloud>,
+}
+
+/// What became of an inserted keyframe.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Inserted {
+    /// A sequence number not held before.
+    New,
+    /// The same bytes again: nothing changed.
+    Duplicate,
+    /// Different bytes for a held sequence number: the first ones were kept.
+    Conflict,
+}
+
+/// What a robot's map was built from: enough to tell whether a persisted global map is current.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Basis {
+    /// Keyframes held.
+    pub keyframes: u64,
+    /// Revision of the pose-graph update whose poses are in effect, if any.
+    pub pose_revision: Option<u64>,
+}
+
+/// One robot's keyframes and poses.
+#[derive(Clone, Debug, Default)]
+pub struct RobotState {
+    keyframes: BTreeMap<u64, ReceivedKeyframe>,
+    /// Optimised poses of the latest pose-graph revision, by sequence number.
+    poses: BTreeMap<u64, Isometry3<f64>>,
+    /// Newest pose-graph revision accepted.
+    pose_revision: Option<u64>,
+    /// The revision whose poses are in effect: a newer update with the same poses leaves it, so
+    /// the basis (and with it the need to re-merge after a restart) follows the map's content.
+    poses_from: Option<u64>,
+    /// Bumped whenever the robot's map changes (a new keyframe or different poses).
+    revision: u64,
+    conflicts: u64,
+}
+
+impl RobotState {
+    /// Keyframes held, by sequence number.
+    pub fn keyframes(&self) -> &BTreeMap<u64, ReceivedKeyframe> {
+        &self.keyframes
+    }
+
+    /// The best pose of keyframe `seq`: the optimised one if any, else the odometry pose.
+    pub fn pose(&self, seq: u64) -> Option<Isometry3<f64>> {
+        self.poses.get(&seq).copied().or_else(|| self.keyframes.get(&seq).map(|k| k.odom_pose))
+    }
+
+    /// The map revision: changes whenever keyframes or poses change.
+    pub fn revision(&self) -> u64 {
+        self.revision
+    }
+
+    /// Highest sequence number held.
+    pub fn max_seq(&self) -> Option<u64> {
+        self.keyframes.keys().next_back().copied()
+    }
+
+    /// Sequence numbers below the highest one held that are not held.
+    pub fn missing(&self) -> Vec<u64> {
+        let mut missing = Vec::new();
+        let mut expected = 0;
+        for &seq in self.keyframes.keys() {
+            missing.extend(expected..seq);
+            expected = seq + 1;
+        }
+        missing
+    }
+
+    /// Conflicting keyframes seen (same sequence number, different bytes).
+    pub fn conflicts(&self) -> u64 {
+        self.conflicts
+    }
+
+    /// What the robot's map is built from now.
+    pub fn basis(&self) -> Basis {
+        Basis { keyframes: self.keyframes.len() as u64, pose_revision: self.poses_from }
+    }
+}
+
+/// Every robot of the fleet.
+#[derive(Clone, Debug, Default)]
+pub struct FleetState {
+    robots: BTreeMap<u32, RobotState>,
+}
+
+impl FleetState {
+    /// Adds a keyframe unless its sequence number is already held.
+    pub fn insert_keyframe(&mut self, keyframe: ReceivedKeyframe) -> Inserted {
+        let robot = self.robots.entry(keyframe.robot).or_default();
+        match robot.keyframes.get(&keyframe.seq) {
+            Some(held) if held.bytes == keyframe.bytes => Inserted::Duplicate,
+            Some(_) => {
+                robot.conflicts += 1;
+                Inserted::Conflict
+            }
+            None => {
+                robot.keyframes.insert(keyframe.seq, keyframe);
+                robot.revision += 1;
+                Inserted::New
+            }
+        }
+    }
+
+    /// Applies a pose-graph update; returns true when it changed the robot's poses. Revisions older
+    /// than the one held are ignored.
+    pub fn apply_poses(&mut self, robot: u32, revision: u64, poses: BTreeMap<u64, Isometry3<f64>>) -> bool {
+        let state = self.robots.entry(robot).or_default();
+        if state.pose_revision.is_some_and(|held| revision <= held) {
+            return false;
+        }
+        state.pose_revision = Some(revision);
+        if state.poses == poses {
+            return false;
+        }
+        state.poses = poses;
+        state.poses_from = Some(revision);
+        state.revision += 1;
+        true
+    }
+
+    /// One robot, if seen.
+    pub fn robot(&self, robot: u32) -> Option<&RobotState> {
+        self.robots.get(&robot)
+    }
+
+    /// Every robot seen, by id.
+    pub fn robots(&self) -> &BTreeMap<u32, RobotState> {
+        &self.robots
+    }
+
+    /// Gaps of one robot (empty for an unknown robot).
+    pub fn missing(&self, robot: u32) -> Vec<u64> {
+        self.robots.get(&robot).map(RobotState::missing).unwrap_or_default()
+    }
+
+    /// Keyframes held over all robots.
+    pub fn total_keyframes(&self) -> usize {
+        self.robots.values().map(|r| r.keyframes.len()).sum()
+    }
+
+    /// Conflicts seen over all robots.
+    pub fn total_conflicts(&self) -> u64 {
+        self.robots.values().map(|r| r.conflicts).sum()
+    }
+
+    /// Keyframes held per robot.
+    pub fn keyframe_counts(&self) -> BTreeMap<u32, usize> {
+        self.robots.iter().map(|(&id, r)| (id, r.keyframes.len())).collect()
+    }
+
+    /// Every robot's current basis.
+    pub fn basis(&self) -> BTreeMap<u32, Basis> {
+        self.robots.iter().map(|(&id, r)| (id, r.basis())).collect()
+    }
+}

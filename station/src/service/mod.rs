@@ -1,0 +1,153 @@
+//! The networked station (`emr-station run`): collects every robot's keyframes and poses over Zenoh,
+//! merges their maps off the async runtime and publishes the global map and its own status.
+//!
+//! - [`fleet_state`]: keyframes by sequence number and latest poses per robot; idempotent inserts.
+//! - [`ingest`]: payload checks (a malformed payload is counted and logged, never fatal).
+//! - [`backfill`]: which keyframes to ask a robot's keyframe store for, one request at a time.
+//! - [`merge_queue`]: coalesced, debounced merge scheduling.
+//! - [`merge_job`]: local maps, the long-lived merger and the `GlobalMap` message.
+//! - [`store`]: persistence in redb, written in batches by a writer thread.
+//! - [`station`]: the event loop tying them together; [`Station`] and [`run`] start it.
+//! - [`client`]: what other processes use: fetching the global map, summarising samples.
+//!
+//! For an in-process station, [`Station::start`] returns a handle whose [`Station::progress`]
+//! receiver tells when the station is idle; [`run`] is the same until a shutdown future resolves.
+
+pub mod backfill;
+pub mod client;
+pub mod fleet_state;
+pub mod ingest;
+pub mod merge_job;
+pub mod merge_queue;
+pub mod station;
+pub mod store;
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use proto::{Fleet, GlobalMap};
+
+use crate::merge::{MergeConfig, MergeError};
+pub use station::Station;
+pub use store::{Committed, StoreError};
+
+/// Everything `emr-station run` can be told.
+#[derive(Clone, Debug)]
+pub struct StationConfig {
+    /// The fleet whose robots to collect.
+    pub fleet: Fleet,
+    /// Where the database lives (`DIR/station.redb`); `None` keeps everything in memory only.
+    pub data_dir: Option<PathBuf>,
+    /// The merge settings.
+    pub merge: MergeConfig,
+    /// Quiet time after the last change before a merge starts.
+    pub debounce: Duration,
+    /// Longest a change waits for its merge, however busy the robots are.
+    pub max_delay: Duration,
+    /// Period of the `StationStatus` messages.
+    pub status_period: Duration,
+}
+
+impl StationConfig {
+    /// In-memory, outdoor merge preset (see `emr-station run --preset`), 2 s debounce, 10 s at most, status every second.
+    pub fn new(fleet: Fleet) -> Self {
+        Self {
+            fleet,
+            data_dir: None,
+            merge: MergeConfig::outdoor(),
+            debounce: Duration::from_secs(2),
+            max_delay: Duration::from_secs(10),
+            status_period: Duration::from_secs(1),
+        }
+    }
+}
+
+/// Why the station could not start or stopped abnormally (nothing a robot sends causes this).
+#[derive(Debug, thiserror::Error)]
+pub enum StationError {
+    /// The database could not be opened or read.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// The merge settings are invalid.
+    #[error(transparent)]
+    Merge(#[from] MergeError),
+    /// Zenoh refused a declaration.
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+    /// The station's task panicked or was cancelled.
+    #[error("station task: {0}")]
+    Task(String),
+}
+
+/// Where the station stands: published on a watch channel after every event.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StationProgress {
+    /// Keyframes held per robot.
+    pub keyframes: BTreeMap<u32, usize>,
+    /// Keyframes known to be missing (gaps below each robot's newest), over all robots.
+    pub missing: usize,
+    /// Payloads rejected since start.
+    pub malformed: u64,
+    /// Keyframes that came again with different bytes (the first were kept).
+    pub conflicts: u64,
+    /// Keyframes received through backfill requests.
+    pub backfilled: u64,
+    /// Backfill requests sent.
+    pub backfill_requests: u64,
+    /// Backfill requests outstanding.
+    pub backfill_in_flight: usize,
+    /// Merges published since start.
+    pub merges: u64,
+    /// Revision of the latest global map (0: none yet).
+    pub revision: u64,
+    /// A merge is waiting for its debounce.
+    pub merge_pending: bool,
+    /// A merge is running.
+    pub merge_running: bool,
+    /// What the database has committed (all zero without a data directory).
+    pub committed: Committed,
+}
+
+impl StationProgress {
+    /// Keyframes held over all robots.
+    pub fn total_keyframes(&self) -> usize {
+        self.keyframes.values().sum()
+    }
+
+    /// True when a global map is published and was built from everything held: nothing pending,
+    /// nothing running.
+    pub fn up_to_date(&self) -> bool {
+        self.revision > 0 && !self.merge_pending && !self.merge_running
+    }
+}
+
+/// What a station did, returned when it stops.
+#[derive(Clone, Debug, Default)]
+pub struct StationSummary {
+    /// The latest global map, if any.
+    pub global_map: Option<GlobalMap>,
+    /// Keyframes held per robot.
+    pub keyframes: BTreeMap<u32, usize>,
+    /// Payloads rejected.
+    pub malformed: u64,
+    /// Conflicting keyframes.
+    pub conflicts: u64,
+    /// Keyframes received through backfill.
+    pub backfilled: u64,
+    /// Merges published by this run.
+    pub merges: u64,
+    /// Wall time of each merge, milliseconds.
+    pub merge_ms: Vec<f64>,
+}
+
+/// Runs a station on `session` until `shutdown` resolves, then commits the last database batch.
+pub async fn run(
+    session: zenoh::Session,
+    config: StationConfig,
+    shutdown: impl Future<Output = ()>,
+) -> Result<StationSummary, StationError> {
+    let station = Station::start(session, config).await?;
+    shutdown.await;
+    station.stop().await
+}
