@@ -6,6 +6,7 @@
 //! process. Only those two touch the network.
 
 pub mod demo;
+pub mod fleet_load;
 pub mod merge;
 pub mod pairwise;
 pub mod service;

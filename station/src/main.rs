@@ -12,6 +12,7 @@ use edge::node::Rate;
 use nalgebra::Isometry3;
 use proto::{Fleet, keyexpr};
 use station::demo::{self, DemoConfig, DemoReport};
+use station::fleet_load::{self, LoadConfig};
 use station::merge::files::{self, AlignMethod, Alignment};
 use station::merge::{MapStatus, MergeConfig, MergeReport};
 use station::pairwise::bench::{bench_merge_files, read_transform};
@@ -195,6 +196,24 @@ enum Bench {
         #[arg(long, value_enum, default_value_t = Preset::Outdoor)]
         preset: Preset,
     },
+    /// A station under a simulated fleet: ROBOTS robots each publish a keyframe per scan at
+    /// RATE_HZ (simulated scans at true poses, prepared before the clock starts) to an in-process
+    /// station over loopback. Prints keyframes received per second, the largest backlog, merge
+    /// times and how long the station takes to catch up, as JSON.
+    Load {
+        /// Robots publishing.
+        #[arg(long, default_value_t = 8)]
+        robots: usize,
+        /// Keyframes per second per robot.
+        #[arg(long, default_value_t = 10.0)]
+        rate_hz: f64,
+        /// Seconds of publishing.
+        #[arg(long, default_value_t = 20.0)]
+        seconds: f64,
+        /// Scenario the robots come from.
+        #[arg(long, default_value = "campus")]
+        scenario: String,
+    },
 }
 
 /// Parameter presets.
@@ -246,6 +265,11 @@ fn main() -> Result<()> {
         }
         Command::Align { source, target, init, method, preset, out } => {
             align(&source, &target, init.as_deref(), method, &preset.config(), out.as_deref())?
+        }
+        Command::Bench(Bench::Load { robots, rate_hz, seconds, scenario }) => {
+            let config = LoadConfig { robots, rate_hz, seconds, scenario, ..LoadConfig::new() };
+            let report = runtime()?.block_on(fleet_load::run(config))?;
+            println!("{}", serde_json::to_string_pretty(&report)?);
         }
         Command::Bench(Bench::Merge { source, target, reference, runs, preset }) => {
             bench_merge(source, target, reference, runs, preset)?
