@@ -122,8 +122,14 @@ fn edge_residual(f: &Feature, pose: &Isometry3<f64>, map: &FeatureMap, config: &
 
 /// Plane feature → plane fitted to its neighbours, accepted when every neighbour lies within
 /// `max_plane_deviation` of it.
-fn plane_residual(f: &Feature, pose: &Isometry3<f64>, map: &FeatureMap, config: &SolverConfig) -> Option<Residual> {
-    let LocalFit { source, points: pts, centre, eig, .. } = local_fit(f, pose, map, config)?;
+fn plane_residual(
+    f: &Feature,
+    pose: &Isometry3<f64>,
+    map: &FeatureMap,
+    config: &SolverConfig,
+    gated: bool,
+) -> Option<Residual> {
+    let LocalFit { source, world, points: pts, centre, eig } = local_fit(f, pose, map, config)?;
     // Neighbours strung along one line (one scan ring) fit every plane through that line: the
     // normal would be arbitrary about it and bias the pose. Demand a two-dimensional spread.
     if eig.values[1] < config.plane_spread * eig.values[2] {
@@ -138,11 +144,34 @@ fn plane_residual(f: &Feature, pose: &Isometry3<f64>, map: &FeatureMap, config: 
     if pts.iter().any(|p| (p - centre).dot(&normal).abs() > config.max_plane_deviation) {
         return None;
     }
+    if gated && config.plane_gate > 0.0 && !within_gate(&source, &world, &centre, &normal, &eig, pose, config) {
+        return None;
+    }
     // Down-weight fits whose points scatter off the plane beyond the range noise: a clean plane
     // keeps full weight, a blend of two surfaces very little.
     let fit = config.plane_noise * config.plane_noise / (config.plane_noise * config.plane_noise + eig.values[0]);
     let weight = fit * f64::from(config.plane_weight_scale / (f.smoothness + config.plane_weight_scale));
     Some(Residual { source, anchor: centre, normal, weight })
+}
+
+/// True when the feature lies as close to its plane as its range noise and the fit's scatter
+/// explain (see [`SolverConfig::plane_gate`]). The beam runs along the sensor-frame point, so a
+/// floor point seen at a grazing angle is expected within millimetres, a wall point seen head-on
+/// within the full range noise.
+fn within_gate(
+    source: &Point3<f64>,
+    world: &Point3<f64>,
+    centre: &Point3<f64>,
+    normal: &Vector3<f64>,
+    eig: &SymmetricEigen3,
+    pose: &Isometry3<f64>,
+    config: &SolverConfig,
+) -> bool {
+    let beam = source.coords.try_normalize(1e-9).unwrap_or_default();
+    let along = config.plane_noise * beam.dot(&(pose.rotation.inverse() * normal));
+    // The centre of k points is off the surface by about the fit's scatter / √k.
+    let spread = (along * along + eig.values[0] / config.neighbours.max(1) as f64).sqrt();
+    normal.dot(&(world - centre)).abs() <= config.plane_gate * spread
 }
 
 /// Normal equations H δ = −b accumulated over residuals, with a Huber kernel.
@@ -237,11 +266,16 @@ pub fn estimate(
         degenerate_directions: 0,
         min_eigen_ratio: 0.0,
     };
+    // The plane gate needs a pose already close in every direction: after a well-conditioned first
+    // search. In a degenerate scene (a corridor) the prior carries the weak direction, and gating
+    // on residuals from that pose thins the constraints the prior depends on (a featureless
+    // corridor ended 5 m off instead of 0.3 m).
+    let mut gate = false;
     for iteration in 1..=config.max_iterations {
         let edge_res: Vec<Residual> =
             edges.par_iter().filter_map(|f| edge_residual(f, &pose, edge_map, config)).collect();
         let plane_res: Vec<Residual> =
-            planes.par_iter().filter_map(|f| plane_residual(f, &pose, plane_map, config)).collect();
+            planes.par_iter().filter_map(|f| plane_residual(f, &pose, plane_map, config, gate)).collect();
         if edge_res.len() + plane_res.len() < config.min_matches {
             break;
         }
@@ -272,6 +306,7 @@ pub fn estimate(
         if converged && iteration > 1 {
             break;
         }
+        gate = out.degenerate_directions == 0;
     }
     out
 }
