@@ -163,9 +163,16 @@ pub async fn run(config: DemoConfig, interrupt: impl Future<Output = ()>) -> Res
         (true, Some(map)) => map,
         _ => return Err(DemoError::Interrupted),
     };
-    let robots = judge(&config, &summaries, &global_map);
-    let written = write_results(&config, &summaries, &global_map, &robots)?;
-    Ok(DemoReport { robots, global_map, wall_s: started.elapsed().as_secs_f64(), merge_ms: station.merge_ms, written })
+    let robots = judge(&summaries, &global_map);
+    let timing = Timing { wall_s: started.elapsed().as_secs_f64(), merge_ms: station.merge_ms };
+    let written = write_results(&config, &summaries, &global_map, &robots, &timing)?;
+    Ok(DemoReport { robots, global_map, wall_s: timing.wall_s, merge_ms: timing.merge_ms, written })
+}
+
+/// Where the time went.
+struct Timing {
+    wall_s: f64,
+    merge_ms: Vec<f64>,
 }
 
 /// A running edge.
@@ -241,7 +248,7 @@ async fn wait_station(station: &Station, keyframes: &BTreeMap<u32, u64>) -> bool
 }
 
 /// Scores each robot against the simulator's truth.
-fn judge(config: &DemoConfig, summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotResult> {
+fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotResult> {
     let reference_start = summaries.get(&map.reference_robot).and_then(|s| s.ground_truth.first().copied().flatten());
     summaries
         .iter()
@@ -264,7 +271,6 @@ fn judge(config: &DemoConfig, summaries: &BTreeMap<u32, NodeSummary>, map: &Glob
                 }
                 _ => (None, None),
             };
-            let _ = config;
             RobotResult {
                 robot,
                 frames: s.frames,
@@ -296,6 +302,7 @@ fn write_results(
     summaries: &BTreeMap<u32, NodeSummary>,
     map: &GlobalMap,
     robots: &[RobotResult],
+    timing: &Timing,
 ) -> Result<Vec<PathBuf>, DemoError> {
     let out = &config.out;
     std::fs::create_dir_all(out).map_err(|e| write_error(out, e))?;
@@ -330,12 +337,12 @@ fn write_results(
     write_json(&path, &placements_json(map))?;
     written.push(path);
     let path = out.join("summary.json");
-    write_json(&path, &summary_json(config, map, robots))?;
+    write_json(&path, &summary_json(config, map, robots, timing))?;
     written.push(path);
     Ok(written)
 }
 
-fn summary_json(config: &DemoConfig, map: &GlobalMap, robots: &[RobotResult]) -> Value {
+fn summary_json(config: &DemoConfig, map: &GlobalMap, robots: &[RobotResult], timing: &Timing) -> Value {
     let ate_json = |a: &Ate| json!({"rmse_m": a.rmse, "mean_m": a.mean, "max_m": a.max});
     let robots: Vec<Value> = robots
         .iter()
@@ -359,6 +366,7 @@ fn summary_json(config: &DemoConfig, map: &GlobalMap, robots: &[RobotResult]) ->
         "reference_robot": map.reference_robot,
         "global_map_points": map.cloud.as_ref().map_or(0, |c| c.points),
         "robots": robots,
+        "timing": {"wall_s": timing.wall_s, "merges": timing.merge_ms.len(), "merge_ms": timing.merge_ms},
     })
 }
 
