@@ -148,6 +148,19 @@ impl NetworkArgs {
     }
 }
 
+impl NetworkArgs {
+    /// The network of a process that joins a station (an edge, a tool): without options, a peer
+    /// connecting to `tcp/127.0.0.1:PORT` and listening on nothing, so that it never competes with
+    /// the station for its port.
+    pub fn joining(&self, port: u16) -> Network {
+        match &self.zenoh {
+            Some(path) => Network::File(path.clone()),
+            None if self.listen.is_empty() && self.connect.is_empty() => Network::loopback_ports(&[], &[port]),
+            None => Network::Loopback { listen: self.listen.clone(), connect: self.connect.clone() },
+        }
+    }
+}
+
 /// A payload that is not the protobuf message its key expression promises.
 #[derive(Debug, thiserror::Error)]
 #[error("malformed {kind} on {key}: {source}")]
@@ -191,6 +204,15 @@ mod tests {
             assert!(matches!(n.config(), Err(BusError::NotLoopback { .. })), "{bad}");
         }
         assert!(Network::loopback_ports(&[7447], &[7448]).config().is_ok());
+    }
+
+    #[test]
+    fn defaults_listen_for_a_station_and_connect_for_the_others() {
+        let none = NetworkArgs::default();
+        assert_eq!(none.network(&[7447]), Network::loopback_ports(&[7447], &[]));
+        assert_eq!(none.joining(7447), Network::loopback_ports(&[], &[7447]));
+        let given = NetworkArgs { connect: vec![endpoint(9000)], ..NetworkArgs::default() };
+        assert_eq!(given.joining(7447), Network::loopback_ports(&[], &[9000]));
     }
 
     #[test]

@@ -58,7 +58,8 @@ enum Command {
     /// The robot's network service: odometry on a source, each keyframe published on
     /// emr/FLEET/robot/ID/keyframe, the keyframes kept for backfill requests on
     /// emr/FLEET/robot/ID/keyframes, and a liveliness token on emr/FLEET/robot/ID/alive. Without
-    /// --zenoh, --listen or --connect it is a loopback peer listening on tcp/127.0.0.1:7447. When the
+    /// --zenoh, --listen or --connect it is a loopback peer connecting to a station on
+    /// tcp/127.0.0.1:7447 (`emr-station run`'s default), listening on nothing. When the
     /// source ends it keeps answering backfill requests until Ctrl-C or SIGTERM (unless
     /// --exit-when-done); either signal stops it cleanly (exit code 0) after publishing the keyframes
     /// already made.
@@ -99,7 +100,7 @@ struct RunArgs {
     network: NetworkArgs,
 }
 
-/// The loopback port `emr-edge run` listens on without network options (zenoh's usual port).
+/// The station's loopback port `emr-edge run` connects to without network options (zenoh's usual port).
 const DEFAULT_PORT: u16 = 7447;
 
 /// Paces of `emr-edge run`.
@@ -525,7 +526,7 @@ fn run(args: RunArgs) -> Result<()> {
         on_source_end: args.summary.clone().map(|path| summary_writer(path, robot)),
         ..NodeConfig::new(args.fleet.clone(), robot, args.source.clone())
     };
-    let network = args.network.network(&[DEFAULT_PORT]);
+    let network = args.network.joining(DEFAULT_PORT);
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build().context("cannot start tokio")?;
     let summary = runtime.block_on(async {
         // Listen for the signals before anything slow, so that an early Ctrl-C still stops cleanly.

@@ -300,12 +300,12 @@ fn main() -> Result<()> {
             rt.shutdown_timeout(Duration::from_secs(1));
         }
         Command::Watch { keyexpr, count, json, network } => {
-            runtime()?.block_on(watch(&keyexpr, count, json, client_network(&network)))?
+            runtime()?.block_on(watch(&keyexpr, count, json, network.joining(DEFAULT_PORT)))?
         }
         Command::Save { fleet, out, transforms, timeout_s, network } => {
             let timeout = Duration::try_from_secs_f64(timeout_s).context("--timeout-s")?;
             let fleet = Fleet::new(&fleet)?;
-            runtime()?.block_on(save(&fleet, &out, transforms.as_deref(), timeout, client_network(&network)))?
+            runtime()?.block_on(save(&fleet, &out, transforms.as_deref(), timeout, network.joining(DEFAULT_PORT)))?
         }
     }
     Ok(())
@@ -316,16 +316,6 @@ const DEFAULT_PORT: u16 = 7447;
 
 fn runtime() -> Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_multi_thread().enable_all().build()?)
-}
-
-/// Without options a client connects to a station on the default port (rather than listening).
-fn client_network(args: &bus::NetworkArgs) -> Network {
-    match args.network(&[DEFAULT_PORT]) {
-        Network::Loopback { listen, connect } if args.listen.is_empty() && args.connect.is_empty() => {
-            Network::Loopback { listen: vec![], connect: listen.into_iter().chain(connect).collect() }
-        }
-        other => other,
-    }
 }
 
 async fn open(network: &Network) -> Result<zenoh::Session> {
