@@ -246,7 +246,9 @@ const KITTI_REVISIT: &str = "../shared/data/kitti08_revisit";
 fn main() -> Result<()> {
     // On a terminal, info; headless, only errors unless RUST_LOG says otherwise (as emr-edge).
     use std::io::IsTerminal;
-    let default = if std::io::stderr().is_terminal() { "info" } else { "error" };
+    // zenoh's own info lines (session ids, endpoints, a gossip warning our loopback config causes on
+    // purpose) are noise to an operator; RUST_LOG=zenoh=info brings them back.
+    let default = if std::io::stderr().is_terminal() { "info,zenoh=error" } else { "error" };
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default.into()))
         .with_writer(std::io::stderr)
