@@ -146,6 +146,23 @@ fn gaps_are_the_missing_seqs_below_the_newest() {
 }
 
 #[test]
+fn an_absurd_sequence_number_lists_boundedly_many_gaps() {
+    let mut s = FleetState::default();
+    s.insert_keyframe(received(1, 2));
+    for seq in [1 << 40, u64::MAX] {
+        // A well-formed keyframe (the cloud of keyframe 2) under an absurd sequence number.
+        let bytes = Keyframe { seq, ..keyframe_msg(fleet().as_str(), 1, 2) }.encode_to_vec();
+        let key = keyexpr::keyframe(&fleet(), 1);
+        s.insert_keyframe(station::service::ingest::keyframe(&fleet(), 1, &key, &bytes).unwrap());
+    }
+    let gaps = s.missing(1);
+    assert_eq!(gaps.len(), station::service::fleet_state::MAX_LISTED_GAPS);
+    assert_eq!(&gaps[..3], &[0, 1, 3], "lowest first");
+    // 2^64 sequence numbers 0..=u64::MAX, 3 of them held.
+    assert_eq!(s.robot(1).unwrap().missing_count(), u64::MAX - 2);
+}
+
+#[test]
 fn inserts_are_idempotent_and_order_free() {
     let mut a = FleetState::default();
     let mut b = FleetState::default();

@@ -65,7 +65,7 @@ impl Backfill {
         let mut seqs = state.missing(robot);
         seqs.truncate(MAX_SEQS_PER_REQUEST);
         let from_seq = match want {
-            Want::Everything => Some(state.robot(robot).and_then(|r| r.max_seq()).map_or(0, |s| s + 1)),
+            Want::Everything => Some(state.robot(robot).and_then(|r| r.max_seq()).map_or(0, |s| s.saturating_add(1))),
             Want::Gaps => None,
         };
         let asked_lately =

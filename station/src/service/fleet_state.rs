@@ -10,6 +10,9 @@ use std::sync::Arc;
 use cloud::PointCloud;
 use nalgebra::Isometry3;
 
+/// Most gaps [`RobotState::missing`] lists (the backfill asks for at most 4096 at a time).
+pub const MAX_LISTED_GAPS: usize = 4096;
+
 /// A keyframe checked and decoded by [`super::ingest`].
 #[derive(Clone, Debug)]
 pub struct ReceivedKeyframe {
@@ -82,15 +85,27 @@ impl RobotState {
         self.keyframes.keys().next_back().copied()
     }
 
-    /// Sequence numbers below the highest one held that are not held.
+    /// Sequence numbers below the highest one held that are not held, lowest first, at most
+    /// [`MAX_LISTED_GAPS`]: a single keyframe with an absurd sequence number must not make the
+    /// station list (or allocate) trillions of gaps.
     pub fn missing(&self) -> Vec<u64> {
         let mut missing = Vec::new();
-        let mut expected = 0;
+        let mut expected = 0u64;
         for &seq in self.keyframes.keys() {
-            missing.extend(expected..seq);
-            expected = seq + 1;
+            let room = MAX_LISTED_GAPS - missing.len();
+            missing.extend((expected..seq).take(room));
+            if missing.len() == MAX_LISTED_GAPS {
+                break;
+            }
+            expected = seq.saturating_add(1);
         }
         missing
+    }
+
+    /// How many sequence numbers below the highest one held are not held (up to `u64::MAX`).
+    pub fn missing_count(&self) -> u64 {
+        let span = self.max_seq().map_or(0, |max| u128::from(max) + 1);
+        u64::try_from(span - self.keyframes.len() as u128).unwrap_or(u64::MAX)
     }
 
     /// Conflicting keyframes seen (same sequence number, different bytes).

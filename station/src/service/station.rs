@@ -523,7 +523,7 @@ impl Core {
         let s = &self.state;
         let c = &self.counters;
         let keyframes = s.keyframe_counts();
-        let missing = s.robots().values().map(|r| r.missing().len()).sum();
+        let missing = s.robots().values().map(|r| r.missing_count() as usize).sum();
         self.progress.send_if_modified(|p| {
             let next = StationProgress {
                 keyframes,
