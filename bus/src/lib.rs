@@ -1,4 +1,5 @@
-//! Zenoh plumbing shared by `emr-edge` and `emr-station`: how a session is configured and opened.
+//! Process plumbing shared by `emr-edge` and `emr-station`: how a Zenoh session is configured and
+//! opened, how they log, how they hear that they must stop.
 //!
 //! Without a configuration file a session is a **peer on loopback**: it listens only on the
 //! `tcp/127.0.0.1:PORT` endpoints it is given, connects only to the ones it is given, and never
@@ -159,6 +160,33 @@ impl NetworkArgs {
             None => Network::Loopback { listen: self.listen.clone(), connect: self.connect.clone() },
         }
     }
+}
+
+/// Logs to stderr: on a terminal progress and info, headless (a robot's service, a pipe) only errors,
+/// unless RUST_LOG says otherwise.
+pub fn init_logging() {
+    use std::io::IsTerminal;
+    // zenoh's own info lines (session ids, endpoints, a gossip warning our loopback config causes on
+    // purpose) are noise to an operator; RUST_LOG=zenoh=info brings them back.
+    let default = if std::io::stderr().is_terminal() { "info,zenoh=error" } else { "error" };
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default.into()))
+        .with_writer(std::io::stderr)
+        .init();
+}
+
+/// Resolves on SIGINT (Ctrl-C) or SIGTERM. The handlers are installed when this is called (inside a
+/// tokio runtime), so a signal that comes before the future is first polled still stops cleanly.
+pub fn shutdown_signal() -> std::io::Result<impl Future<Output = ()>> {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut interrupt = signal(SignalKind::interrupt())?;
+    let mut terminate = signal(SignalKind::terminate())?;
+    Ok(async move {
+        tokio::select! {
+            _ = interrupt.recv() => {}
+            _ = terminate.recv() => {}
+        }
+    })
 }
 
 /// A payload that is not the protobuf message its key expression promises.

@@ -295,16 +295,7 @@ enum BenchCommand {
 }
 
 fn main() -> Result<()> {
-    // On a terminal, progress and info; headless (a robot's service, a pipe), only errors unless
-    // RUST_LOG says otherwise.
-    use std::io::IsTerminal;
-    // zenoh's own info lines (session ids, endpoints, a gossip warning our loopback config causes on
-    // purpose) are noise to an operator; RUST_LOG=zenoh=info brings them back.
-    let default = if std::io::stderr().is_terminal() { "info,zenoh=error" } else { "error" };
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default.into()))
-        .with_writer(std::io::stderr)
-        .init();
+    bus::init_logging();
     match Cli::parse().command {
         Command::Bench { what: BenchCommand::Codec { data, step, repeat } } => {
             let report = bench::codec(&data, step, repeat)?;
@@ -532,7 +523,7 @@ fn run(args: RunArgs) -> Result<()> {
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build().context("cannot start tokio")?;
     let summary = runtime.block_on(async {
         // Listen for the signals before anything slow, so that an early Ctrl-C still stops cleanly.
-        let shutdown = shutdown_signal()?;
+        let shutdown = bus::shutdown_signal().context("cannot handle SIGINT/SIGTERM")?;
         let session = network.open().await.with_context(|| format!("cannot join {}", bus::describe(&network)))?;
         let summary = node::run(&session, config, shutdown).await;
         if let Err(e) = session.close().await {
@@ -573,19 +564,6 @@ fn robot_id(given: Option<u32>, source: &SourceSpec) -> Result<u32> {
         (None, SourceSpec::Sim { robot, .. }) => Ok(*robot),
         (None, SourceSpec::Recording(path)) => bail!("--robot is required with a recording ({})", path.display()),
     }
-}
-
-/// Resolves on SIGINT (Ctrl-C) or SIGTERM; the handlers are installed when this is called.
-fn shutdown_signal() -> Result<impl std::future::Future<Output = ()>> {
-    use tokio::signal::unix::{SignalKind, signal};
-    let mut interrupt = signal(SignalKind::interrupt()).context("cannot handle SIGINT")?;
-    let mut terminate = signal(SignalKind::terminate()).context("cannot handle SIGTERM")?;
-    Ok(async move {
-        tokio::select! {
-            _ = interrupt.recv() => {}
-            _ = terminate.recv() => {}
-        }
-    })
 }
 
 /// `emr-edge eval`.

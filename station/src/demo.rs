@@ -114,10 +114,21 @@ pub struct RobotResult {
     pub global_ate: Option<Ate>,
     /// Placement error against the truth: metres and degrees.
     pub placement_error: Option<(f64, f64)>,
+    /// The robot's odometry frame in the global frame, estimated and true, when it was merged.
+    pub frame: Option<GlobalFrame>,
     /// Published confidence and status.
     pub confidence: f64,
     /// Merged or not.
     pub merged: bool,
+}
+
+/// Where a merged robot's odometry frame lies in the global frame.
+#[derive(Clone, Copy, Debug)]
+pub struct GlobalFrame {
+    /// As the station placed it.
+    pub placed: Isometry3<f64>,
+    /// As the simulator knows it.
+    pub truth: Isometry3<f64>,
 }
 
 /// What the demo did.
@@ -255,22 +266,20 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotRe
         .map(|(&robot, s)| {
             let placement = map.robots.iter().find(|p| p.robot == robot);
             let merged = placement.is_some_and(|p| p.status() == MergeStatus::Merged);
-            let transform = placement.and_then(|p| p.transform.as_ref()).and_then(|t| Isometry3::try_from(t).ok());
+            let placed = placement.and_then(|p| p.transform.as_ref()).and_then(|t| Isometry3::try_from(t).ok());
+            let frame = match (merged, placed, reference_start, s.ground_truth.first()) {
+                (true, Some(placed), Some(g_ref), Some(Some(g0))) => {
+                    Some(GlobalFrame { placed, truth: g_ref.inverse() * g0 })
+                }
+                _ => None,
+            };
             let truth = truth_in_own_frame(s);
             let odometry_ate = (ate(&truth, &s.poses, true), ate(&truth, &s.poses, false));
-            let (global_ate, placement_error) = match (merged, transform, reference_start, s.ground_truth.first()) {
-                (true, Some(t), Some(g_ref), Some(Some(g0))) => {
-                    let true_t = g_ref.inverse() * g0;
-                    let placed: Vec<_> = s.poses.iter().map(|p| t * p).collect();
-                    let true_global: Vec<_> = truth.iter().map(|p| true_t * p).collect();
-                    let d = t.inverse() * true_t;
-                    (
-                        Some(ate(&true_global, &placed, false)),
-                        Some((d.translation.vector.norm(), d.rotation.angle().to_degrees())),
-                    )
-                }
-                _ => (None, None),
-            };
+            let global_ate = frame.map(|f| ate(&moved(&truth, &f.truth), &moved(&s.poses, &f.placed), false));
+            let placement_error = frame.map(|f| {
+                let d = f.placed.inverse() * f.truth;
+                (d.translation.vector.norm(), d.rotation.angle().to_degrees())
+            });
             RobotResult {
                 robot,
                 frames: s.frames,
@@ -278,11 +287,17 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotRe
                 odometry_ate,
                 global_ate,
                 placement_error,
+                frame,
                 confidence: placement.map_or(0.0, |p| p.confidence),
                 merged,
             }
         })
         .collect()
+}
+
+/// Poses moved into another frame.
+fn moved(poses: &[Isometry3<f64>], frame: &Isometry3<f64>) -> Vec<Isometry3<f64>> {
+    poses.iter().map(|p| frame * p).collect()
 }
 
 /// Ground truth relative to the first pose: the robot's odometry frame.
@@ -311,22 +326,12 @@ fn write_results(
     let ply = out.join("global_map.ply");
     files::write_by_extension(&ply, &cloud).map_err(|e: FilesError| write_error(&ply, e))?;
     written.push(ply);
-    let reference_start = summaries.get(&map.reference_robot).and_then(|s| s.ground_truth.first().copied().flatten());
-    for (robot, s) in summaries {
-        let placement = map
-            .robots
-            .iter()
-            .find(|p| p.robot == *robot && p.status() == MergeStatus::Merged)
-            .and_then(|p| p.transform.as_ref())
-            .and_then(|t| Isometry3::try_from(t).ok());
-        let frame = match (placement, reference_start, s.ground_truth.first().copied().flatten()) {
-            (Some(t), Some(g_ref), Some(g0)) => Some((t, g_ref.inverse() * g0)),
-            _ => None,
-        };
-        let (est_t, true_t) = frame.unwrap_or((Isometry3::identity(), Isometry3::identity()));
-        let truth = truth_in_own_frame(s);
-        let est = Trajectory { poses: s.poses.iter().map(|p| est_t * p).collect(), stamps: Some(s.stamps.clone()) };
-        let gt = Trajectory { poses: truth.iter().map(|p| true_t * p).collect(), stamps: Some(s.stamps.clone()) };
+    for r in robots {
+        let (robot, s) = (r.robot, &summaries[&r.robot]);
+        let frame = r.frame.unwrap_or(GlobalFrame { placed: Isometry3::identity(), truth: Isometry3::identity() });
+        let stamps = Some(s.stamps.clone());
+        let est = Trajectory { poses: moved(&s.poses, &frame.placed), stamps: stamps.clone() };
+        let gt = Trajectory { poses: moved(&truth_in_own_frame(s), &frame.truth), stamps };
         for (name, t) in [("estimated", est), ("ground_truth", gt)] {
             let path = out.join(format!("robot{robot}_{name}_tum.txt"));
             std::fs::write(&path, t.to_tum()).map_err(|e| write_error(&path, e))?;

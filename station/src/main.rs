@@ -244,15 +244,7 @@ enum CliMethod {
 const KITTI_REVISIT: &str = "../shared/data/kitti08_revisit";
 
 fn main() -> Result<()> {
-    // On a terminal, info; headless, only errors unless RUST_LOG says otherwise (as emr-edge).
-    use std::io::IsTerminal;
-    // zenoh's own info lines (session ids, endpoints, a gossip warning our loopback config causes on
-    // purpose) are noise to an operator; RUST_LOG=zenoh=info brings them back.
-    let default = if std::io::stderr().is_terminal() { "info,zenoh=error" } else { "error" };
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default.into()))
-        .with_writer(std::io::stderr)
-        .init();
+    bus::init_logging();
     match Cli::parse().command {
         Command::Keys { fleet, robot } => print_keys(&Fleet::new(&fleet)?, robot),
         Command::Info { files } => {
@@ -285,7 +277,8 @@ fn main() -> Result<()> {
                 out,
                 ..DemoConfig::new()
             };
-            let report = runtime()?.block_on(demo::run(config, shutdown_signal()))?;
+            let report =
+                runtime()?.block_on(async { demo::run(config, signal()?).await.map_err(anyhow::Error::from) })?;
             print_demo(&report);
         }
         Command::Run { fleet, data_dir, preset, debounce_ms, max_delay_ms, network } => {
@@ -320,6 +313,11 @@ fn runtime() -> Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_multi_thread().enable_all().build()?)
 }
 
+/// SIGINT or SIGTERM; call inside the runtime.
+fn signal() -> Result<impl std::future::Future<Output = ()>> {
+    bus::shutdown_signal().context("cannot handle SIGINT/SIGTERM")
+}
+
 async fn open(network: &Network) -> Result<zenoh::Session> {
     network.open().await.with_context(|| bus::describe(network))
 }
@@ -327,7 +325,7 @@ async fn open(network: &Network) -> Result<zenoh::Session> {
 async fn run_station(config: StationConfig, network: Network) -> Result<()> {
     let session = open(&network).await?;
     tracing::info!("station for fleet {} on {}", config.fleet, bus::describe(&network));
-    let summary = service::run(session.clone(), config, shutdown_signal()).await?;
+    let summary = service::run(session.clone(), config, signal()?).await?;
     tracing::info!(
         "stopped: {} keyframes from {} robots, {} merges, {} malformed payloads",
         summary.keyframes.values().sum::<usize>(),
@@ -337,23 +335,6 @@ async fn run_station(config: StationConfig, network: Network) -> Result<()> {
     );
     session.close().await.map_err(|e| anyhow::anyhow!("closing the zenoh session: {e}"))?;
     Ok(())
-}
-
-/// Resolves on SIGINT or SIGTERM.
-async fn shutdown_signal() {
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
-    let term = async {
-        match term.as_mut() {
-            Some(t) => {
-                t.recv().await;
-            }
-            None => std::future::pending().await,
-        }
-    };
-    tokio::select! {
-        _ = tokio::signal::ctrl_c() => {}
-        () = term => {}
-    }
 }
 
 async fn watch(keyexpr: &str, count: Option<usize>, json: bool, network: Network) -> Result<()> {

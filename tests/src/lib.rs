@@ -11,7 +11,8 @@ use std::time::{Duration, Instant};
 use edge::sim::{Scenario, SimConfig, Simulator};
 use nalgebra::Isometry3;
 use prost::Message;
-use proto::{Fleet, GlobalMap, MergeStatus};
+use proto::{Fleet, GlobalMap, MergeStatus, StationStatus};
+use station::service::client::fetch_global_map;
 
 /// Path of one of the workspace's binaries, built beside the running test executable.
 pub fn binary(name: &str) -> PathBuf {
@@ -191,19 +192,16 @@ impl Observer {
 
     /// The station's latest global map, from its queryable, if it answers within a second.
     pub fn latest_global_map(&self) -> Option<GlobalMap> {
+        let fetched = self.runtime.block_on(fetch_global_map(&self.session, &self.fleet, Duration::from_secs(1)));
+        fetched.ok().map(|(map, _)| map)
+    }
+
+    /// The next `StationStatus` the station publishes, if one comes within `timeout`.
+    pub fn next_status(&self, timeout: Duration) -> Option<StationStatus> {
         self.runtime.block_on(async {
-            let replies =
-                self.session.get(proto::keyexpr::global_map(&self.fleet)).timeout(Duration::from_secs(1)).await.ok()?;
-            let mut latest: Option<GlobalMap> = None;
-            while let Ok(reply) = replies.recv_async().await {
-                if let Ok(sample) = reply.result()
-                    && let Ok(map) = GlobalMap::decode(sample.payload().to_bytes().as_ref())
-                    && latest.as_ref().is_none_or(|l| map.revision > l.revision)
-                {
-                    latest = Some(map);
-                }
-            }
-            latest
+            let sub = self.session.declare_subscriber(proto::keyexpr::station_status(&self.fleet)).await.ok()?;
+            let sample = tokio::time::timeout(timeout, sub.recv_async()).await.ok()?.ok()?;
+            StationStatus::decode(sample.payload().to_bytes().as_ref()).ok()
         })
     }
 

@@ -8,7 +8,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use prost::Message;
-use proto::{CompressedCloud, GlobalMap, Keyframe, Pose, StationStatus, Timestamp};
+use proto::{CompressedCloud, GlobalMap, Keyframe, Pose, Timestamp};
 use tests::*;
 
 const SCENARIO: &str = "warehouse-large";
@@ -204,20 +204,4 @@ async fn attack(session: &zenoh::Session) -> u64 {
         publisher.put(bytes).await.unwrap();
     }
     sent
-}
-
-/// Status messages: decoded from the station's periodic publication.
-trait StatusExt {
-    fn next_status(&self, timeout: Duration) -> Option<StationStatus>;
-}
-
-impl StatusExt for Observer {
-    fn next_status(&self, timeout: Duration) -> Option<StationStatus> {
-        let fleet = proto::Fleet::new(FLEET).unwrap();
-        self.runtime.block_on(async {
-            let sub = self.session.declare_subscriber(proto::keyexpr::station_status(&fleet)).await.ok()?;
-            let sample = tokio::time::timeout(timeout, sub.recv_async()).await.ok()?.ok()?;
-            StationStatus::decode(sample.payload().to_bytes().as_ref()).ok()
-        })
-    }
 }
