@@ -1,12 +1,15 @@
 //! Step 2-3 — one pairwise estimate: global registration, VGICP refinement, confidence.
 
-use cloud::registration::{Method, align_gaussians};
+use cloud::registration::{Method, Target, align_gaussians};
 use cloud::se3::pose_error;
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3};
+use rayon::prelude::*;
 
-use super::ambiguity::{mean_displacement, runner_up};
+use super::ambiguity::{RunnerUp, mean_displacement, runner_up, upright_support};
 use super::{MergeConfig, PreparedMap};
-use crate::pairwise::{self, Confidence, PairwiseOutcome, Rejection, confidence};
+use crate::pairwise::{
+    self, Confidence, MapFeatures, PairwiseConfig, PairwiseOutcome, PairwiseResult, Rejection, confidence, polish,
+};
 
 /// An accepted edge of the match graph between maps `a` and `b`.
 #[derive(Clone, Debug, PartialEq)]
@@ -25,7 +28,8 @@ pub struct Edge {
     pub confidence: Confidence,
     /// RANSAC inliers of the global registration.
     pub inliers: usize,
-    /// Inliers of the strongest distinct alternative over `inliers` (0: none found).
+    /// The strongest distinct alternative against the chosen transform: the smaller of its shares
+    /// of inliers and of upright support (0: none found; see [`super::ambiguity`]).
     pub ambiguity: f64,
 }
 
@@ -47,12 +51,17 @@ pub enum PairRejection {
         needed: f64,
     },
     /// A distinct transform has nearly as much support: repetitive structure, no unique answer.
-    #[error("ambiguous: an alternative {away:.1} m away has {runner_up} inliers against {inliers}")]
+    #[error(
+        "ambiguous: an alternative {away:.1} m away has {runner_up} inliers against {inliers} and {:.0} % of the upright support",
+        100.0 * support
+    )]
     Ambiguous {
         /// Inliers of the chosen transform.
         inliers: usize,
         /// Inliers of the alternative.
         runner_up: usize,
+        /// Upright support of the alternative over that of the chosen transform.
+        support: f64,
         /// Mean displacement between the two on the source keypoints, metres.
         away: f64,
     },
@@ -84,6 +93,15 @@ impl PairVerdict {
     }
 }
 
+/// The features and settings a transform was found with.
+struct Scale<'a> {
+    source: &'a MapFeatures,
+    target: &'a MapFeatures,
+    config: &'a PairwiseConfig,
+    /// [`MergeConfig::ambiguity_distance`] in this scale's RANSAC inlier distances.
+    ambiguity_distance: f64,
+}
+
 /// Estimates the transform mapping map `b` (source) into map `a` (target), both usable.
 pub fn estimate_pair(
     (a, map_a): (usize, &PreparedMap),
@@ -93,43 +111,55 @@ pub fn estimate_pair(
     let (Some(target), Some(source)) = (map_a.usable(), map_b.usable()) else {
         return PairVerdict::Rejected { reason: PairRejection::Unusable, best: None, best_transform: None };
     };
-    let global = match pairwise::align(source, target, &config.pairwise) {
-        PairwiseOutcome::Aligned(r) => r,
-        PairwiseOutcome::NotAligned { reason, best } => {
-            return PairVerdict::Rejected {
-                reason: PairRejection::Pairwise(reason),
-                best: best.as_ref().map(|r| r.confidence),
-                best_transform: best.map(|r| r.transform),
-            };
-        }
+    let fine = Scale { source, target, config: &config.pairwise, ambiguity_distance: config.ambiguity_distance };
+    let (scale, global) = match pairwise::align(source, target, &config.pairwise) {
+        PairwiseOutcome::Aligned(r) => (fine, *r),
+        PairwiseOutcome::NotAligned { reason, best } => match coarse_alignment(map_b, map_a, config) {
+            Some(found) => found,
+            None => {
+                return PairVerdict::Rejected {
+                    reason: PairRejection::Pairwise(reason),
+                    best: best.as_ref().map(|r| r.confidence),
+                    best_transform: best.map(|r| r.transform),
+                };
+            }
+        },
     };
     let score_at = |t: &Isometry3<f64>| {
         confidence::confidence(
-            &source.surfels.points,
-            &target.surfels.tree,
+            &scale.source.surfels.points,
+            &scale.target.surfels.tree,
             t,
             global.inlier_ratio,
-            &config.pairwise.confidence,
+            &scale.config.confidence,
         )
     };
-    let at_global = score_at(&global.transform);
-    // VGICP minimises its own cost on other points; the mean squared nearest-neighbour distance on
-    // the feature surfels arbitrates (identical maps: VGICP's voxel means pull it a centimetre off
-    // the exact answer, which this catches).
-    let refined = refine(map_b, map_a, &global.transform, config)
-        .map(|t| (t, score_at(&t)))
-        .filter(|(_, s)| s.fitness >= at_global.fitness);
-    let (transform, scores) = refined.unwrap_or((global.transform, at_global));
+    // VGICP minimises its own cost on voxel means; the truncated mean squared nearest-neighbour distance
+    // between the VGICP input points arbitrates (identical maps: the voxel means pull VGICP a
+    // centimetre off the exact answer, which this catches). Not on the feature surfels: at 0.4 m
+    // their spacing hides decimetres, and the truth can score worse than a transform 12 cm off.
+    let refined = refine(map_b, map_a, &global.transform, config).filter(|t| {
+        mean_squared_gap(map_b, map_a, t, config) <= mean_squared_gap(map_b, map_a, &global.transform, config)
+    });
+    let transform = refined.unwrap_or(global.transform);
+    let scores = score_at(&transform);
     let reject = |reason| PairVerdict::Rejected { reason, best: Some(scores), best_transform: Some(transform) };
     if scores.score < config.min_confidence {
         return reject(PairRejection::LowConfidence { score: scores.score, needed: config.min_confidence });
     }
     let inliers = global.inliers.len();
-    let alternative = runner_up(source, target, &transform, config.ambiguity_distance, &config.pairwise);
-    let ambiguity = alternative.map_or(0.0, |r| r.inliers as f64 / inliers.max(1) as f64);
+    let support = upright_support(
+        &scale.source.surfels,
+        &scale.target.surfels,
+        &transform,
+        scale.config.confidence.overlap_distance,
+    );
+    let alternative = runner_up(scale.source, scale.target, &transform, scale.ambiguity_distance, scale.config);
+    let ambiguity = alternative.map_or(0.0, |r| ambiguity(&r, inliers, support));
     if let Some(r) = alternative.filter(|_| ambiguity > config.max_ambiguity) {
-        let away = mean_displacement(&source.keypoint_positions(), &transform, &r.transform);
-        return reject(PairRejection::Ambiguous { inliers, runner_up: r.inliers, away });
+        let away = mean_displacement(&scale.source.keypoint_positions(), &transform, &r.transform);
+        let support = r.upright_support / support.max(f64::MIN_POSITIVE);
+        return reject(PairRejection::Ambiguous { inliers, runner_up: r.inliers, support, away });
     }
     PairVerdict::Edge(Edge {
         a,
@@ -142,6 +172,58 @@ pub fn estimate_pair(
         ambiguity,
     })
 }
+
+/// The reliable transform of [`MergeConfig::coarse`], polished on the fine surfels, with its scale.
+fn coarse_alignment<'a>(
+    source: &'a PreparedMap,
+    target: &'a PreparedMap,
+    config: &'a MergeConfig,
+) -> Option<(Scale<'a>, PairwiseResult)> {
+    let coarse = config.coarse.as_ref()?;
+    let (coarse_source, coarse_target) = (source.usable_coarse()?, target.usable_coarse()?);
+    let PairwiseOutcome::Aligned(mut result) = pairwise::align(coarse_source, coarse_target, coarse) else {
+        return None;
+    };
+    // The coarse polish leaves a decimetre; the fine surfels bring it within VGICP's reach.
+    let (fine_source, fine_target) = (source.usable()?, target.usable()?);
+    result.transform =
+        polish::polish(&fine_source.surfels, &fine_target.surfels, &result.transform, &config.pairwise.polish);
+    let ambiguity_distance =
+        config.ambiguity_distance * coarse.ransac.inlier_distance / config.pairwise.ransac.inlier_distance;
+    let scale = Scale { source: coarse_source, target: coarse_target, config: coarse, ambiguity_distance };
+    Some((scale, *result))
+}
+
+/// How strong an alternative is against the chosen transform: the smaller of its inlier share and
+/// its upright-support share (a map without upright surfaces leaves only the inliers).
+fn ambiguity(alternative: &RunnerUp, inliers: usize, support: f64) -> f64 {
+    let by_features = alternative.inliers as f64 / inliers.max(1) as f64;
+    let by_geometry = if support > 0.0 { alternative.upright_support / support } else { f64::INFINITY };
+    by_features.min(by_geometry)
+}
+
+/// Truncated mean squared distance from the source's VGICP input points (at most
+/// [`GAP_SAMPLES`], evenly spread) to their nearest target point: `mean(min(d², v²))` with `v` the
+/// refinement voxel. The truncation makes points outside the overlap count the same under both
+/// transforms compared, so that the overlap decides; infinite when the clouds are missing.
+fn mean_squared_gap(source: &PreparedMap, target: &PreparedMap, t: &Isometry3<f64>, config: &MergeConfig) -> f64 {
+    let (Some(s), Some(q)) = (source.fine.as_ref(), target.fine.as_ref()) else { return f64::INFINITY };
+    let cap = f64::from(config.refine_voxel).powi(2);
+    let stride = (s.len() / GAP_SAMPLES).max(1);
+    let (sum, count) = (0..s.len())
+        .into_par_iter()
+        .step_by(stride)
+        .map(|i| {
+            let p = t * Point3::from(s.points[i]);
+            q.nearest(&p.coords, cap).map_or(cap, |j| (q.mean(j) - p.coords).norm_squared().min(cap))
+        })
+        .fold(|| (0.0, 0usize), |(sum, n), d| (sum + d, n + 1))
+        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    if count == 0 { f64::INFINITY } else { sum / count as f64 }
+}
+
+/// Source points the refinement arbitration measures: enough for a stable mean, cheap per pair.
+const GAP_SAMPLES: usize = 20_000;
 
 /// The VGICP transform from `init`, if it converged nearby; `None` keeps the global estimate.
 pub fn refine(

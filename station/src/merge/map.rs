@@ -15,6 +15,8 @@ pub struct PreparedMap {
     pub dropped_non_finite: usize,
     /// Pairwise features, or why the map cannot be registered.
     pub features: Result<MapFeatures, FeatureError>,
+    /// Features at [`MergeConfig::coarse`], when configured and computable.
+    pub coarse: Option<MapFeatures>,
     /// The map at [`MergeConfig::refine_voxel`] with covariances; `None` when too small to refine.
     pub fine: Option<GaussianCloud>,
 }
@@ -23,14 +25,26 @@ impl PreparedMap {
     /// Drops non-finite points, then computes the features and the VGICP Gaussians concurrently.
     pub fn new(mut cloud: PointCloud, config: &MergeConfig) -> Self {
         let dropped_non_finite = cloud.retain_finite();
-        let (features, fine) =
-            rayon::join(|| MapFeatures::compute(&cloud, &config.pairwise), || fine_gaussians(&cloud, config));
-        Self { cloud, dropped_non_finite, features, fine }
+        let ((features, coarse), fine) = rayon::join(
+            || {
+                rayon::join(
+                    || MapFeatures::compute(&cloud, &config.pairwise),
+                    || config.coarse.as_ref().and_then(|c| MapFeatures::compute(&cloud, c).ok()),
+                )
+            },
+            || fine_gaussians(&cloud, config),
+        );
+        Self { cloud, dropped_non_finite, features, coarse, fine }
     }
 
     /// The features if the map is usable.
     pub fn usable(&self) -> Option<&MapFeatures> {
         self.features.as_ref().ok()
+    }
+
+    /// The coarse features if the map is usable at both scales.
+    pub fn usable_coarse(&self) -> Option<&MapFeatures> {
+        self.usable().and(self.coarse.as_ref())
     }
 }
 

@@ -3,12 +3,15 @@
 //! 1. **Per map, once** ([`map::PreparedMap`]): the pairwise features (finite points, voxel grid,
 //!    outlier filter, normals, Harris keypoints, FPFH) and the Gaussians VGICP needs.
 //! 2. **Per pair, in parallel** ([`estimate::estimate_pair`]): global registration
-//!    ([`crate::pairwise::align`]), then VGICP refinement started from it
+//!    ([`crate::pairwise::align`]); when it finds no reliable transform and
+//!    [`MergeConfig::coarse`] is set (indoor), the same at 0.4 m, polished on the fine surfels.
+//!    Then VGICP refinement started from it
 //!    ([`cloud::registration::align_gaussians`], VGICP). The refinement is kept
 //!    only if it converged to a transform within [`MergeConfig::max_refine_translation`] /
 //!    [`MergeConfig::max_refine_rotation_deg`] of the global one (VGICP that runs off locked onto
-//!    a wrong structure) and does not leave a larger mean squared nearest-neighbour distance on the
-//!    feature surfels than the global transform; otherwise the global transform stands.
+//!    a wrong structure) and does not leave a larger truncated mean squared nearest-neighbour
+//!    distance (capped at [`MergeConfig::refine_voxel`]²) between the VGICP input points than the
+//!    global transform; otherwise the global transform stands.
 //! 3. **Confidence.** What is published per edge is the *overlap-aware score*
 //!    `s = √(overlap · inlier_ratio)` of [`crate::pairwise::confidence`], recomputed at the final
 //!    (refined) transform: `overlap` is the share of source surfels with a target surfel within
@@ -18,8 +21,11 @@
 //!    checks pass (inliers, overlap, score), `s ≥` [`MergeConfig::min_confidence`] — default
 //!    **0.09 outdoor** (true campus pairs score 0.097-0.23, a similar-looking unrelated street
 //!    0.06-0.08) and **0.12 indoor** (the pairwise default) — and the pair is not ambiguous
-//!    ([`ambiguity`]: no distinct transform with more than half the inliers; true pairs measure
-//!    0.04-0.08, the identical-rack halls of `aisles` 0.77).
+//!    ([`ambiguity`]: no distinct transform with more than half the inliers *and* more than half
+//!    the upright support, the share of wall-like surfels landing on a parallel target surface;
+//!    true pairs measure 0.01-0.18, the identical-rack halls of `aisles` 0.70 at 0.1 m and 0.53
+//!    at 0.4 m). The scores of a transform found by the coarse fallback are measured on the
+//!    coarse features (`warehouse-small`: score 0.17, 22 inliers).
 //! 4. **Match graph** ([`graph`]): a maximum spanning forest on the scores (Kruskal); the reference
 //!    component is the one holding [`MergeConfig::reference`] or else the largest one; its
 //!    reference map is the configured one or else the tree centre (least maximum hop count, so no
@@ -65,6 +71,10 @@ pub const INDOOR_MIN_CONFIDENCE: f64 = 0.12;
 pub struct MergeConfig {
     /// Global registration of each pair (default [`PairwiseConfig::outdoor`]).
     pub pairwise: PairwiseConfig,
+    /// A second, coarser global registration tried when `pairwise` finds no reliable transform
+    /// (outdoor `None`; indoor [`PairwiseConfig::outdoor`]'s 0.4 m features with the indoor
+    /// `min_score`). Its transform is polished on `pairwise`'s surfels before refinement.
+    pub coarse: Option<PairwiseConfig>,
     /// VGICP refinement (outdoor: 1 m voxels, 1 m correspondences; indoor 0.3 m / 0.3 m).
     pub refine: RegistrationConfig,
     /// Voxel the maps are downsampled to for VGICP, metres (outdoor 0.25, indoor 0.1).
@@ -77,7 +87,7 @@ pub struct MergeConfig {
     /// pairwise `min_score` of the preset is set to the same value).
     pub min_confidence: f64,
     /// A pair is refused as ambiguous when a distinct alternative transform has more than this
-    /// share of the chosen one's RANSAC inliers (default 0.5).
+    /// share of the chosen one's RANSAC inliers and of its upright support (default 0.5).
     pub max_ambiguity: f64,
     /// Alternatives closer than this to the chosen transform (mean keypoint displacement) are the
     /// same answer, not an alternative, metres (outdoor 4, indoor 1: four RANSAC inlier distances).
@@ -104,6 +114,7 @@ impl MergeConfig {
         pairwise.confidence.min_score = OUTDOOR_MIN_CONFIDENCE;
         Self {
             pairwise,
+            coarse: None,
             refine: RegistrationConfig::default(),
             refine_voxel: 0.25,
             max_refine_translation: 1.0,
@@ -116,10 +127,17 @@ impl MergeConfig {
         }
     }
 
-    /// Rooms, warehouses: 0.1 m features, VGICP input and output, confidence ≥ 0.12.
+    /// Rooms, warehouses: 0.1 m features (0.4 m when they fail), VGICP input and output,
+    /// confidence ≥ 0.12.
     pub fn indoor() -> Self {
+        // Fine features need both robots to have sampled the common part alike; where one saw it
+        // only from afar (through a door) its 0.1 m voxels hold LiDAR rings, not surfaces, and
+        // only the 0.4 m grid, which fills the gaps between rings, describes it as the other map.
+        let mut coarse = PairwiseConfig::outdoor();
+        coarse.confidence.min_score = INDOOR_MIN_CONFIDENCE;
         Self {
             pairwise: PairwiseConfig::indoor(),
+            coarse: Some(coarse),
             min_confidence: INDOOR_MIN_CONFIDENCE,
             refine: RegistrationConfig {
                 voxel_resolution: 0.3,
@@ -146,6 +164,9 @@ impl MergeConfig {
     /// Checks every setting.
     pub fn validate(&self) -> Result<(), MergeError> {
         self.pairwise.validate().map_err(MergeError::Config)?;
+        if let Some(c) = &self.coarse {
+            c.validate().map_err(MergeError::Config)?;
+        }
         let positive = |v: f64| v > 0.0 && v.is_finite();
         let ok = positive(f64::from(self.refine_voxel))
             && positive(f64::from(self.output_voxel))
