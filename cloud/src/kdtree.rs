@@ -59,6 +59,14 @@ impl KdTree {
         found.into_iter().map(|r| Neighbour { index: r.item as usize, dist_sq: r.distance }).collect()
     }
 
+    /// The `k` nearest points to `q` no farther than `radius` (inclusive), closest first: a bounded
+    /// search prunes the tree where an unbounded one would go on looking for far neighbours.
+    pub fn knn_within(&self, q: &[f32; 3], k: usize, radius: f32) -> Vec<Neighbour> {
+        let (Some(tree), Some(k)) = (&self.tree, NonZero::new(k)) else { return Vec::new() };
+        let found = tree.query(q).nearest_n::<SquaredEuclidean<f32>>(k).within(radius * radius).execute();
+        found.into_iter().map(|r| Neighbour { index: r.item as usize, dist_sq: r.distance }).collect()
+    }
+
     /// All points within `radius` of `q` (inclusive), closest first.
     pub fn within(&self, q: &[f32; 3], radius: f32) -> Vec<Neighbour> {
         let Some(tree) = &self.tree else { return Vec::new() };
@@ -107,6 +115,9 @@ mod tests {
             let p = pts[n.index];
             assert!(((0..3).map(|i| (p[i] - q[i]).powi(2)).sum::<f32>() - n.dist_sq).abs() < 1e-3);
             let r = 1.5;
+            let bounded: Vec<f32> = tree.knn_within(&q, 8, r).iter().map(|n| n.dist_sq).collect();
+            let want_bounded: Vec<f32> = want.iter().copied().filter(|d| *d <= r * r).collect();
+            assert_eq!(bounded.len(), want_bounded.len(), "{bounded:?} vs {want_bounded:?}");
             let inside = pts.iter().filter(|p| (0..3).map(|i| (p[i] - q[i]).powi(2)).sum::<f32>() <= r * r).count();
             assert_eq!(tree.within(&q, r).len(), inside);
         }

@@ -282,6 +282,21 @@ enum BenchCommand {
         #[arg(long, default_value_t = 50)]
         frames: usize,
     },
+    /// Odometry: the scans are read into memory first, then registered `--runs` times on a
+    /// one-thread pool; median and p95 milliseconds per scan of each run, and the ATE when the
+    /// source has ground truth.
+    Odometry {
+        #[command(flatten)]
+        source: SourceArgs,
+        #[command(flatten)]
+        tuning: TuningArgs,
+        /// Scans read from the source.
+        #[arg(long, default_value_t = 600)]
+        frames: usize,
+        /// Timed passes over the scans (each with a fresh odometry).
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+    },
     /// Fine registration (GICP, VGICP): median time per registration on one thread and on all, and
     /// the error against the reference pose, on DIR/{source,target}.ply and DIR/T_target_source.txt.
     Gicp {
@@ -307,6 +322,13 @@ fn main() -> Result<()> {
             for kind in sensors {
                 println!("{}", sim::bench::run(&scenario, kind, frames)?);
             }
+        }
+        Command::Bench { what: BenchCommand::Odometry { source, tuning, frames, runs } } => {
+            let config = odometry_config(&tuning)?;
+            let options = recording_options(source.topic.clone(), &config);
+            let scans = Source::open(&source.input, Some(frames), &SimConfig::default(), &options)?
+                .collect::<Result<Vec<_>, _>>()?;
+            println!("{}", bench::odometry(&scans, &config, runs)?);
         }
         Command::Bench { what: BenchCommand::Gicp { data, runs } } => {
             println!("{}", cloud::registration::bench::gicp(&data, runs)?);

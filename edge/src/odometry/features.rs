@@ -1,7 +1,9 @@
 //! Feature extraction (F-LOAM section III-A): per-ring smoothness, sectors, edge and plane points.
 
 use cloud::PointCloud;
+use cloud::voxel::VoxelKey;
 use nalgebra::Point3;
+use rustc_hash::FxHashSet;
 
 use super::FeatureConfig;
 
@@ -102,9 +104,30 @@ fn block_unreliable(ring: &mut Ring, k: usize, config: &FeatureConfig) {
     }
 }
 
+/// Keeps the first feature of each voxel: an even spread at a fraction of the cost (F-LOAM
+/// downsamples its features to the map resolution).
+struct Thinning {
+    inv_edge: f32,
+    inv_plane: f32,
+    edges: FxHashSet<VoxelKey>,
+    planes: FxHashSet<VoxelKey>,
+}
+
+impl Thinning {
+    fn new(config: &FeatureConfig) -> Self {
+        Thinning {
+            inv_edge: 1.0 / config.edge_voxel,
+            inv_plane: 1.0 / config.plane_voxel,
+            edges: FxHashSet::default(),
+            planes: FxHashSet::default(),
+        }
+    }
+}
+
 /// Per sector: the sharpest unblocked points above the edge threshold become edges (at most
-/// `max_edges_per_sector`, suppressing their neighbours); points below the plane threshold become planes.
-fn select(ring: &mut Ring, k: usize, config: &FeatureConfig, out: &mut Features) {
+/// `max_edges_per_sector`, suppressing their neighbours); points below the plane threshold become
+/// planes. Both are thinned to one per voxel as they are found.
+fn select(ring: &mut Ring, k: usize, config: &FeatureConfig, thinning: &mut Thinning, out: &mut Features) {
     let n = ring.points.len();
     if n < 2 * k + 1 {
         return;
@@ -125,13 +148,18 @@ fn select(ring: &mut Ring, k: usize, config: &FeatureConfig, out: &mut Features)
             if ring.blocked[i] {
                 continue;
             }
-            out.edges.push(feature(ring, i));
+            if thinning.edges.insert(VoxelKey::of(&ring.points[i], thinning.inv_edge)) {
+                out.edges.push(feature(ring, i));
+            }
             edges += 1;
             suppress_neighbours(ring, i, k, config.suppression_gap);
         }
         // Planes: every reliable point flatter than the threshold (thinned later by voxel).
         for i in lo..hi {
-            if ring.smoothness[i] < config.plane_threshold && !ring.blocked[i] {
+            if ring.smoothness[i] < config.plane_threshold
+                && !ring.blocked[i]
+                && thinning.planes.insert(VoxelKey::of(&ring.points[i], thinning.inv_plane))
+            {
                 out.planes.push(feature(ring, i));
             }
         }
@@ -172,17 +200,19 @@ pub enum FeatureError {
     NoTime,
 }
 
-/// Extracts edge and plane features from a scan with ring and time channels; `period` is the sweep
-/// duration in seconds, which turns point times into sweep phases for distortion compensation.
+/// Extracts edge and plane features from a scan with ring and time channels, thinned to one per
+/// voxel of `edge_voxel` / `plane_voxel`; `period` is the sweep duration in seconds, which turns
+/// point times into sweep phases for distortion compensation.
 pub fn extract(scan: &PointCloud, period: f32, config: &FeatureConfig) -> Result<Features, FeatureError> {
     let ring_ids = scan.ring.as_deref().ok_or(FeatureError::NoRing)?;
     let times = scan.time.as_deref().ok_or(FeatureError::NoTime)?;
     let k = config.neighbours;
     let mut out = Features::default();
+    let mut thinning = Thinning::new(config);
     for mut ring in rings(scan, ring_ids, times, period, config) {
         compute_smoothness(&mut ring, k);
         block_unreliable(&mut ring, k, config);
-        select(&mut ring, k, config, &mut out);
+        select(&mut ring, k, config, &mut thinning, &mut out);
     }
     Ok(out)
 }
@@ -209,7 +239,9 @@ mod tests {
     #[test]
     fn corners_are_edges_and_walls_are_planes() {
         let scan = square_room_ring(1800, 5.0);
-        let f = extract(&scan, 0.1, &FeatureConfig::default()).unwrap();
+        // Voxels far below the point spacing: selection alone, no thinning.
+        let config = FeatureConfig { edge_voxel: 1e-4, plane_voxel: 1e-4, ..FeatureConfig::default() };
+        let f = extract(&scan, 0.1, &config).unwrap();
         assert!(!f.edges.is_empty());
         // Every edge lies near one of the corners (±5, ±5) at 45°, 135°, ...
         for e in &f.edges {
@@ -229,6 +261,15 @@ mod tests {
         }
         // Phases follow the firing time.
         assert!(f.planes.iter().all(|p| (0.0..=1.0).contains(&p.phase)));
+        // Thinned to one per 0.4 m voxel: the 40 m of wall on the ring's plane cross about 100
+        // voxels (a few more where the walls straddle voxel faces), each keeping its first plane.
+        let thinned = extract(&scan, 0.1, &FeatureConfig::default()).unwrap();
+        let voxels: FxHashSet<VoxelKey> = f.planes.iter().map(|p| VoxelKey::of(&p.point, 1.0 / 0.4)).collect();
+        assert_eq!(thinned.planes.len(), voxels.len());
+        let first =
+            f.planes.iter().find(|p| VoxelKey::of(&p.point, 2.5) == VoxelKey::of(&thinned.planes[0].point, 2.5));
+        assert_eq!(first, Some(&thinned.planes[0]));
+        assert!((90..=140).contains(&thinned.planes.len()), "{}", thinned.planes.len());
     }
 
     #[test]

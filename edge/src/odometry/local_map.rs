@@ -121,12 +121,13 @@ impl FeatureMap {
         self.scans_since_rebuild = 0;
     }
 
-    /// The `k` nearest map points to `q`, closest first.
-    pub fn knn(&self, q: &Point3<f32>, k: usize) -> Vec<Neighbour> {
+    /// The `k` nearest map points to `q` within `radius`, closest first.
+    pub fn knn(&self, q: &Point3<f32>, k: usize, radius: f32) -> Vec<Neighbour> {
         let q = [q.x, q.y, q.z];
-        let mut found = self.tree.knn(&q, k);
+        let mut found = self.tree.knn_within(&q, k, radius);
         if !self.recent.is_empty() {
-            found.extend(self.recent.knn(&q, k).into_iter().map(|n| Neighbour { index: n.index + self.base, ..n }));
+            let recent = self.recent.knn_within(&q, k, radius);
+            found.extend(recent.into_iter().map(|n| Neighbour { index: n.index + self.base, ..n }));
             found.sort_by(|a, b| a.dist_sq.total_cmp(&b.dist_sq));
             found.truncate(k);
         }
@@ -172,7 +173,7 @@ mod tests {
         got.sort_by(|a, b| a.x.total_cmp(&b.x));
         assert_eq!(got, vec![Point3::new(0.1, 0.1, 0.1), Point3::new(0.5, 0.5, 0.5)]);
         assert_eq!(
-            map.knn(&Point3::new(0.45, 0.5, 0.5), 1)[0].index,
+            map.knn(&Point3::new(0.45, 0.5, 0.5), 1, 1.0)[0].index,
             map.points().iter().position(|p| p.x == 0.5).unwrap()
         );
     }

@@ -413,6 +413,14 @@ impl Odometry {
 
     /// Registers one scan (with ring and per-point time channels) and returns its pose.
     pub fn register(&mut self, scan: &PointCloud) -> Result<Frame, OdometryError> {
+        // The stages' parallel loops hand their work to rayon's pool and wait for it: called from
+        // a thread outside the pool, each loop costs a worker's wake-up and a hand-over back, a
+        // dozen per scan. Run on a worker, the scan pays for one.
+        rayon::scope(|_| self.register_on_pool(scan))
+    }
+
+    /// [`Odometry::register`] on a worker of rayon's pool.
+    fn register_on_pool(&mut self, scan: &PointCloud) -> Result<Frame, OdometryError> {
         let clock = std::time::Instant::now();
         let lap = |since: &mut std::time::Instant| {
             let ms = since.elapsed().as_secs_f64() * 1e3;
@@ -467,12 +475,9 @@ impl Odometry {
         })
     }
 
-    /// Features of the raw scan, planes thinned to one per voxel (F-LOAM downsamples its surface points).
+    /// Features of the raw scan (thinned to one per voxel).
     fn extract(&self, scan: &PointCloud) -> Result<Features, OdometryError> {
-        let mut f = features::extract(scan, self.config.scan_period, &self.config.features)?;
-        f.edges = thin(&f.edges, self.config.features.edge_voxel);
-        f.planes = thin(&f.planes, self.config.features.plane_voxel);
-        Ok(f)
+        Ok(features::extract(scan, self.config.scan_period, &self.config.features)?)
     }
 
     /// A keyframe when the robot moved or turned enough since the last one (the first scan always is).
@@ -499,11 +504,4 @@ impl Odometry {
         self.keyframes += 1;
         Some(Keyframe { seq, frame: self.frames, pose: self.pose, cloud })
     }
-}
-
-/// Keeps the first feature of each voxel: an even spread at a fraction of the cost.
-fn thin(features: &[features::Feature], voxel: f32) -> Vec<features::Feature> {
-    let inv = 1.0 / voxel;
-    let mut seen = rustc_hash::FxHashSet::default();
-    features.iter().filter(|f| seen.insert(cloud::voxel::VoxelKey::of(&f.point, inv))).copied().collect()
 }

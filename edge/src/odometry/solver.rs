@@ -38,13 +38,86 @@ pub struct Estimate {
     pub min_eigen_ratio: f64,
 }
 
-/// A feature with the line or plane geometry of its map neighbourhood.
-struct LocalFit {
-    /// The feature in the sweep-end sensor frame.
-    source: Point3<f64>,
-    /// The feature placed by the current pose.
-    world: Point3<f64>,
-    /// The map neighbours.
+/// Map points fetched per search beyond the k a fit uses: they let later iterations, after the
+/// pose has moved, find the new k nearest without searching the map again (see [`Searched`]).
+const SPARE_CANDIDATES: usize = 3;
+
+/// A feature's map neighbourhood as found by one k-d tree search, with its fit.
+///
+/// The map does not change while one scan is registered, and after the first correspondence
+/// search the pose moves by millimetres to centimetres. A search fetches the k + s nearest map
+/// points within the radius (the candidates); every other map point is then at least `beyond`
+/// from where it searched (the last candidate's distance, or the radius). After the query moved
+/// by δ, another point is at least `beyond − δ` away, so when the k-th nearest candidate is closer
+/// than that, the k nearest candidates are the query's k nearest neighbours in the whole map:
+/// exact, and it spares most searches of later iterations (and the fit, when the k are the same).
+#[derive(Clone)]
+struct Searched {
+    /// Where the search was made from (the feature placed in the map then).
+    from: Point3<f64>,
+    /// The nearest map points within the radius, closest first, with their scan lines.
+    candidates: Vec<(Point3<f32>, ScanLine)>,
+    /// Every map point that is not a candidate is at least this far from `from` (m).
+    beyond: f64,
+    /// The candidates the fit was made of, closest first.
+    chosen: Vec<usize>,
+    /// Their fit; `None` when they come from a single scan line (see [`spans_scan_lines`]).
+    fit: Option<Fit>,
+}
+
+impl Searched {
+    /// Searches the k + s nearest map points of `q` within the neighbour radius and fits the k
+    /// nearest; `None` when fewer than k lie within the radius.
+    fn new(map: &FeatureMap, q: Point3<f64>, config: &SolverConfig) -> Option<Searched> {
+        let k = config.neighbours;
+        let radius = config.max_neighbour_distance;
+        let nn = map.knn(&q.cast::<f32>(), k + SPARE_CANDIDATES, radius);
+        if k == 0 || nn.len() < k {
+            return None;
+        }
+        // f32 distances from an f32 query: keep a margin for their rounding.
+        let last = if nn.len() == k + SPARE_CANDIDATES { nn[nn.len() - 1].dist_sq.sqrt() } else { radius };
+        let candidates = nn.iter().map(|n| (map.point(n.index), map.line(n.index))).collect();
+        let mut searched =
+            Searched { from: q, candidates, beyond: f64::from(last) - 1e-4, chosen: Vec::new(), fit: None };
+        searched.choose((0..k).collect());
+        Some(searched)
+    }
+
+    /// The candidates that are certainly the k nearest map points of `q`, closest first.
+    ///
+    /// Distances are taken as the tree takes them (f32, from the query cast to f32), so that the
+    /// neighbours and their order are those a new search would return.
+    fn nearest(&self, q: &Point3<f64>, k: usize) -> Option<Vec<usize>> {
+        let moved = (q - self.from).norm();
+        let q32 = q.cast::<f32>();
+        let mut by_distance: Vec<(f32, usize)> =
+            self.candidates.iter().enumerate().map(|(i, (p, _))| ((p - q32).norm_squared(), i)).collect();
+        by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
+        if f64::from(by_distance.get(k.checked_sub(1)?)?.0.sqrt()) >= self.beyond - moved {
+            return None;
+        }
+        Some(by_distance[..k].iter().map(|&(_, i)| i).collect())
+    }
+
+    /// Fits the `chosen` candidates, unless they are those of the current fit.
+    fn choose(&mut self, chosen: Vec<usize>) {
+        if chosen == self.chosen {
+            return;
+        }
+        let lines: Vec<ScanLine> = chosen.iter().map(|&i| self.candidates[i].1).collect();
+        self.fit = spans_scan_lines(&lines).then(|| {
+            let points: Vec<Point3<f64>> = chosen.iter().map(|&i| self.candidates[i].0.cast::<f64>()).collect();
+            let (mean, cov) = mean_covariance(points.iter().map(|p| p.coords));
+            Fit { points, centre: Point3::from(mean), eig: symmetric_eigen3(&cov) }
+        });
+        self.chosen = chosen;
+    }
+}
+
+/// The neighbours of a search and the decomposition of their covariance.
+#[derive(Clone)]
+struct Fit {
     points: Vec<Point3<f64>>,
     /// Their mean.
     centre: Point3<f64>,
@@ -52,27 +125,38 @@ struct LocalFit {
     eig: SymmetricEigen3,
 }
 
-/// Places the feature by `pose` and decomposes its map neighbourhood (see [`neighbourhood`]).
-fn local_fit(f: &Feature, pose: &Isometry3<f64>, map: &FeatureMap, config: &SolverConfig) -> Option<LocalFit> {
-    let source = f.point.cast::<f64>();
-    let world = pose * source;
-    let points = neighbourhood(map, &world.cast::<f32>(), config)?;
-    let (mean, cov) = mean_covariance(points.iter().map(|p| p.coords));
-    Some(LocalFit { source, world, points, centre: Point3::from(mean), eig: symmetric_eigen3(&cov) })
+/// A feature with the line or plane geometry of its map neighbourhood.
+struct LocalFit<'a> {
+    /// The feature in the sweep-end sensor frame.
+    source: Point3<f64>,
+    /// The feature placed by the current pose.
+    world: Point3<f64>,
+    /// The map neighbours and their fit.
+    fit: &'a Fit,
 }
 
-/// The map neighbourhood of `q` if all `k` neighbours lie within the search radius and come from
-/// at least two scan lines (a single ring's trace fits a false horizontal plane or line).
-fn neighbourhood(map: &FeatureMap, q: &Point3<f32>, config: &SolverConfig) -> Option<Vec<Point3<f64>>> {
-    let nn = map.knn(q, config.neighbours);
-    let r2 = config.max_neighbour_distance * config.max_neighbour_distance;
-    if nn.len() < config.neighbours || nn.last()?.dist_sq > r2 {
+/// Places the feature by `pose` and finds its map neighbourhood, searching the map only when the
+/// last search (`searched`) cannot answer. The neighbourhood is used when all `k` neighbours lie
+/// within the search radius of the feature.
+fn local_fit<'a>(
+    f: &Feature,
+    pose: &Isometry3<f64>,
+    map: &FeatureMap,
+    config: &SolverConfig,
+    searched: &'a mut Option<Searched>,
+) -> Option<LocalFit<'a>> {
+    let source = f.point.cast::<f64>();
+    let world = pose * source;
+    match searched.as_ref().and_then(|s| s.nearest(&world, config.neighbours)) {
+        Some(chosen) => searched.as_mut()?.choose(chosen),
+        None => *searched = Searched::new(map, world, config),
+    }
+    let fit = searched.as_ref()?.fit.as_ref()?;
+    let r2 = f64::from(config.max_neighbour_distance).powi(2);
+    if fit.points.iter().any(|p| (p - world).norm_squared() > r2) {
         return None;
     }
-    if !spans_scan_lines(&nn.iter().map(|n| map.line(n.index)).collect::<Vec<_>>()) {
-        return None;
-    }
-    Some(nn.iter().map(|n| map.point(n.index).cast::<f64>()).collect())
+    Some(LocalFit { source, world, fit })
 }
 
 /// True when a neighbourhood is sampled across scan lines: three lines, or two lines with two
@@ -90,8 +174,16 @@ fn spans_scan_lines(lines: &[ScanLine]) -> bool {
 
 /// Edge feature → line fitted to its neighbours, accepted when the largest eigenvalue exceeds
 /// `line_ratio` × the middle one (the points really spread along one direction).
-fn edge_residual(f: &Feature, pose: &Isometry3<f64>, map: &FeatureMap, config: &SolverConfig) -> Option<Residual> {
-    let LocalFit { source, world: w, points: pts, centre, eig } = local_fit(f, pose, map, config)?;
+fn edge_residual(
+    f: &Feature,
+    pose: &Isometry3<f64>,
+    map: &FeatureMap,
+    config: &SolverConfig,
+    searched: &mut Option<Searched>,
+) -> Option<Residual> {
+    let LocalFit { source, world: w, fit: Fit { points: pts, centre, eig } } =
+        local_fit(f, pose, map, config, searched)?;
+    let centre = *centre;
     if eig.values[2] < config.line_ratio * eig.values[1] {
         return None;
     }
@@ -128,8 +220,10 @@ fn plane_residual(
     map: &FeatureMap,
     config: &SolverConfig,
     gated: bool,
+    searched: &mut Option<Searched>,
 ) -> Option<Residual> {
-    let LocalFit { source, world, points: pts, centre, eig } = local_fit(f, pose, map, config)?;
+    let LocalFit { source, world, fit: Fit { points: pts, centre, eig } } = local_fit(f, pose, map, config, searched)?;
+    let centre = *centre;
     // Neighbours strung along one line (one scan ring) fit every plane through that line: the
     // normal would be arbitrary about it and bias the pose. Demand a two-dimensional spread.
     if eig.values[1] < config.plane_spread * eig.values[2] {
@@ -144,7 +238,7 @@ fn plane_residual(
     if pts.iter().any(|p| (p - centre).dot(&normal).abs() > config.max_plane_deviation) {
         return None;
     }
-    if gated && config.plane_gate > 0.0 && !within_gate(&source, &world, &centre, &normal, &eig, pose, config) {
+    if gated && config.plane_gate > 0.0 && !within_gate(&source, &world, &centre, &normal, eig, pose, config) {
         return None;
     }
     // Down-weight fits whose points scatter off the plane beyond the range noise: a clean plane
@@ -271,11 +365,19 @@ pub fn estimate(
     // on residuals from that pose thins the constraints the prior depends on (a featureless
     // corridor ended 5 m off instead of 0.3 m).
     let mut gate = false;
+    let mut edge_searches = vec![None; edges.len()];
+    let mut plane_searches = vec![None; planes.len()];
     for iteration in 1..=config.max_iterations {
-        let edge_res: Vec<Residual> =
-            edges.par_iter().filter_map(|f| edge_residual(f, &pose, edge_map, config)).collect();
-        let plane_res: Vec<Residual> =
-            planes.par_iter().filter_map(|f| plane_residual(f, &pose, plane_map, config, gate)).collect();
+        let edge_res: Vec<Residual> = edges
+            .par_iter()
+            .zip(&mut edge_searches)
+            .filter_map(|(f, s)| edge_residual(f, &pose, edge_map, config, s))
+            .collect();
+        let plane_res: Vec<Residual> = planes
+            .par_iter()
+            .zip(&mut plane_searches)
+            .filter_map(|(f, s)| plane_residual(f, &pose, plane_map, config, gate, s))
+            .collect();
         if edge_res.len() + plane_res.len() < config.min_matches {
             break;
         }
@@ -359,6 +461,44 @@ mod tests {
             v.extend(grid_plane(axis, 4.0, 4.0, 0.1));
         }
         v
+    }
+
+    #[test]
+    fn a_reused_search_gives_the_true_nearest_neighbours_or_nothing() {
+        // A random cloud; queries moved by 0-5 cm from where they searched, as between iterations.
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let points: Vec<Point3<f32>> =
+            (0..3000).map(|_| Point3::new(next() * 6.0, next() * 6.0, next() * 2.0).cast::<f32>()).collect();
+        let map = map_of(&points);
+        let config = SolverConfig::default();
+        let k = config.neighbours;
+        let (mut reused, mut refused) = (0, 0);
+        for _ in 0..2000 {
+            let q0 = Point3::new(1.0 + next() * 4.0, 1.0 + next() * 4.0, next() * 2.0);
+            let q1 = q0 + Vector3::new(next() - 0.5, next() - 0.5, next() - 0.5).normalize() * next() * 0.05;
+            let Some(searched) = Searched::new(&map, q0, &config) else { continue };
+            let Some(chosen) = searched.nearest(&q1, k) else {
+                refused += 1;
+                continue;
+            };
+            reused += 1;
+            let mut got: Vec<Point3<f64>> = chosen.iter().map(|&i| searched.candidates[i].0.cast::<f64>()).collect();
+            let mut want: Vec<Point3<f64>> = map.points().iter().map(|p| p.cast::<f64>()).collect();
+            want.sort_by(|a, b| (a - q1).norm_squared().total_cmp(&(b - q1).norm_squared()));
+            want.truncate(k);
+            let key = |p: &Point3<f64>| (p.x, p.y, p.z);
+            got.sort_by(|a, b| key(a).partial_cmp(&key(b)).unwrap());
+            want.sort_by(|a, b| key(a).partial_cmp(&key(b)).unwrap());
+            assert_eq!(got, want, "query moved {} m", (q1 - q0).norm());
+        }
+        // The reuse must actually happen for the test to mean anything, and be refused sometimes.
+        assert!(reused > 1000 && refused > 0, "{reused} reused, {refused} refused");
     }
 
     #[test]
