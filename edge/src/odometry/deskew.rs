@@ -56,6 +56,13 @@ impl SweepMotion {
         CompensationTable { to_end }
     }
 
+    /// An upper bound on how far apart the two motions place a point `range` metres away, at
+    /// the sweep start (where they differ most).
+    pub fn difference_at(&self, other: &SweepMotion, range: f64) -> f64 {
+        let d = self.0 - other.0;
+        d.fixed_rows::<3>(0).norm() + range * d.fixed_rows::<3>(3).norm()
+    }
+
     /// True when there is no motion to compensate.
     pub fn is_zero(&self) -> bool {
         self.0 == Vector6::zeros()

@@ -341,8 +341,26 @@ fn solve(n: &Normal, config: &SolverConfig) -> (Vector6<f64>, usize, f64) {
     (s * (eig.eigenvectors * delta_eig), degenerate, min_ratio)
 }
 
+/// The map searches of one scan's features, kept across estimates against the same maps (the
+/// same features compensated again move a little; see [`Searched`] for when a search is reused).
+pub struct Neighbourhoods {
+    edges: Vec<Option<Searched>>,
+    planes: Vec<Option<Searched>>,
+}
+
+impl Neighbourhoods {
+    /// No search made yet for `edges` edge and `planes` plane features.
+    pub fn new(edges: usize, planes: usize) -> Self {
+        Neighbourhoods { edges: vec![None; edges], planes: vec![None; planes] }
+    }
+}
+
 /// Estimates the scan-end pose from the `initial` guess by matching edge and plane features (in the
 /// sweep-end sensor frame) against the local maps.
+///
+/// `searches` holds what earlier estimates of the same features (in the same order) against the
+/// same maps found, or nothing ([`Neighbourhoods::new`]); searches made for other features are
+/// dropped.
 pub fn estimate(
     edges: &[Feature],
     planes: &[Feature],
@@ -350,7 +368,11 @@ pub fn estimate(
     plane_map: &FeatureMap,
     initial: Isometry3<f64>,
     config: &SolverConfig,
+    searches: &mut Neighbourhoods,
 ) -> Estimate {
+    if searches.edges.len() != edges.len() || searches.planes.len() != planes.len() {
+        *searches = Neighbourhoods::new(edges.len(), planes.len());
+    }
     let mut pose = initial;
     let mut out = Estimate {
         pose,
@@ -365,17 +387,15 @@ pub fn estimate(
     // on residuals from that pose thins the constraints the prior depends on (a featureless
     // corridor ended 5 m off instead of 0.3 m).
     let mut gate = false;
-    let mut edge_searches = vec![None; edges.len()];
-    let mut plane_searches = vec![None; planes.len()];
     for iteration in 1..=config.max_iterations {
         let edge_res: Vec<Residual> = edges
             .par_iter()
-            .zip(&mut edge_searches)
+            .zip(&mut searches.edges)
             .filter_map(|(f, s)| edge_residual(f, &pose, edge_map, config, s))
             .collect();
         let plane_res: Vec<Residual> = planes
             .par_iter()
-            .zip(&mut plane_searches)
+            .zip(&mut searches.planes)
             .filter_map(|(f, s)| plane_residual(f, &pose, plane_map, config, gate, s))
             .collect();
         if edge_res.len() + plane_res.len() < config.min_matches {
@@ -508,7 +528,9 @@ mod tests {
         let truth = Isometry3::new(Vector3::new(0.3, -0.2, 0.1), Vector3::new(0.01, -0.02, 0.08));
         // The scan sees every 7th world point from the true pose.
         let scan: Vec<_> = world.iter().step_by(7).map(|p| truth.inverse().cast::<f32>() * p).collect();
-        let est = estimate(&[], &features(&scan), &map_of(&[]), &map, Isometry3::identity(), &SolverConfig::default());
+        let scan = features(&scan);
+        let searches = &mut Neighbourhoods::new(0, scan.len());
+        let est = estimate(&[], &scan, &map_of(&[]), &map, Isometry3::identity(), &SolverConfig::default(), searches);
         let e = cloud::se3::pose_error(&est.pose, &truth);
         assert!(e.translation_m < 1e-3 && e.rotation_deg < 0.02, "{e:?} after {} iterations", est.iterations);
         assert_eq!(est.degenerate_directions, 0);
@@ -526,7 +548,9 @@ mod tests {
             world.iter().step_by(5).filter(|p| p.x.abs() < 4.0).map(|p| truth.inverse().cast::<f32>() * p).collect();
         // The prior says 0.4 m along x (say, from the motion model): it must be kept, not drift.
         let prior = Isometry3::translation(0.4, 0.0, 0.0);
-        let est = estimate(&[], &features(&scan), &map_of(&[]), &map, prior, &SolverConfig::default());
+        let scan = features(&scan);
+        let searches = &mut Neighbourhoods::new(0, scan.len());
+        let est = estimate(&[], &scan, &map_of(&[]), &map, prior, &SolverConfig::default(), searches);
         assert!(est.degenerate_directions >= 1, "{est:?}");
         let t = est.pose.translation.vector;
         assert!((t.x - 0.4).abs() < 0.02, "x moved from the prior: {t}");
