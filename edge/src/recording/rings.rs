@@ -19,6 +19,7 @@
 
 use cloud::PointCloud;
 use nalgebra::Point3;
+use std::sync::LazyLock;
 
 /// How to fill the ring channel of a scan that has none.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -190,13 +191,15 @@ pub fn uniform_rings(points: &[Point3<f32>], beams: u16, min_deg: f32, max_deg: 
 
 /// Rings by clustering elevations: histogram, peaks, k-means refinement, nearest peak.
 pub fn cluster_rings(points: &[Point3<f32>], options: &ClusterOptions) -> RingClusters {
-    let sample: Vec<Point3<f32>> =
-        points.iter().step_by(points.len().div_ceil(SAMPLE_POINTS).max(1)).copied().collect();
+    let step = points.len().div_ceil(SAMPLE_POINTS).max(1);
+    let sample: Vec<Point3<f32>> = points.iter().step_by(step).copied().collect();
     let h = if options.fit_beam_origin { fit_beam_origin(&sample, options) } else { 0.0 };
-    let sample_elevations: Vec<f64> = sample.iter().map(|p| elevation_deg(p, h)).collect();
+    // Exact elevations, once per point: the sample's feed the peak search, all feed the assignment.
+    let elevations: Vec<f64> = points.iter().map(|p| elevation_deg(p, h)).collect();
+    let sample_elevations: Vec<f64> = elevations.iter().step_by(step).copied().collect();
     let peaks = find_peaks(&sample_elevations, options);
     let centers = refine(&sample_elevations, peaks);
-    let ring = points.iter().map(|p| nearest(&centers, elevation_deg(p, h))).collect();
+    let ring = elevations.iter().map(|&e| nearest(&centers, e)).collect();
     RingClusters { ring, elevations_deg: centers.iter().map(|&c| c as f32).collect(), beam_origin_m: h as f32 }
 }
 
@@ -209,10 +212,12 @@ fn elevation_deg(p: &Point3<f32>, h: f64) -> f64 {
 /// The beam origin height that makes the elevation histogram sharpest: coarse then fine grid.
 fn fit_beam_origin(sample: &[Point3<f32>], options: &ClusterOptions) -> f64 {
     let max = f64::from(options.max_beam_origin_m.abs());
-    let sharpest = |candidates: Vec<f64>| {
+    let polar = Polar::new(sample);
+    let mut scratch = Scratch::default();
+    let mut sharpest = |candidates: Vec<f64>| {
         candidates
             .into_iter()
-            .map(|h| (sharpness(sample, h, options.bin_deg), h))
+            .map(|h| (sharpness(&polar, h, options.bin_deg, &mut scratch), h))
             .max_by(|a, b| a.0.total_cmp(&b.0))
             .map_or(0.0, |(_, h)| h)
     };
@@ -226,14 +231,147 @@ fn grid(from: f64, to: f64, step: f64) -> Vec<f64> {
     (0..=n).map(|i| from + i as f64 * step).collect()
 }
 
+/// The sample in cylindrical coordinates, computed once for all candidate heights of the fit.
+struct Polar {
+    z: Vec<f64>,
+    /// `hypot(x, y)`, as [`elevation_deg`] computes it.
+    r: Vec<f64>,
+    /// Table segments per metre of `z - h`: `(z - h) * scale + HALF_SEGMENTS` is the point's
+    /// position in [`ATAN_TABLE`], a multiply-add away from the height.
+    scale: Vec<f64>,
+}
+
+impl Polar {
+    fn new(points: &[Point3<f32>]) -> Self {
+        let r: Vec<f64> = points.iter().map(|p| f64::from(p.x).hypot(f64::from(p.y))).collect();
+        let scale = r.iter().map(|r| HALF_SEGMENTS / r).collect();
+        Polar { z: points.iter().map(|p| f64::from(p.z)).collect(), r, scale }
+    }
+
+    /// Exactly [`elevation_deg`] of point `i`.
+    fn elevation_deg(&self, i: usize, h: f64) -> f64 {
+        (self.z[i] - h).atan2(self.r[i]).to_degrees()
+    }
+
+    /// The elevations of all points within [`FAST_ELEVATION_ERROR_DEG`], into `out`, and their
+    /// range (inverted if all are NaN). Exact where the table does not apply (beyond 45 degrees,
+    /// or not finite).
+    fn fast_elevations_deg(&self, h: f64, out: &mut Vec<f64>) -> (f64, f64) {
+        let table: &AtanTable = &ATAN_TABLE;
+        out.resize(self.z.len(), 0.0);
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for (((&z, &scale), &r), out) in self.z.iter().zip(&self.scale).zip(&self.r).zip(out) {
+            let u = (z - h) * scale + HALF_SEGMENTS;
+            let e = if (0.0..=2.0 * HALF_SEGMENTS).contains(&u) {
+                table_atan_deg(table, u)
+            } else {
+                (z - h).atan2(r).to_degrees()
+            };
+            lo = if e < lo { e } else { lo };
+            hi = if e > hi { e } else { hi };
+            *out = e;
+        }
+        (lo, hi)
+    }
+}
+
+/// Bound on the error of [`Polar::fast_elevations_deg`], degrees; the tests measure under a tenth
+/// of it. Far below any sensible bin width, so that few points need their exact elevation.
+const FAST_ELEVATION_ERROR_DEG: f64 = 1e-8;
+/// Half the number of segments of [`ATAN_TABLE`], which spans tangents -1 to 1.
+const HALF_SEGMENTS: f64 = 256.0;
+
+/// `atan(t)` in degrees on segments of tangent `1 / HALF_SEGMENTS` wide: per segment, the cubic
+/// Taylor expansion about its centre in powers of the table position (see [`table_atan_deg`]).
+/// One entry more than segments, for `t = 1` exactly.
+type AtanTable = [[f64; 4]; 2 * HALF_SEGMENTS as usize + 1];
+
+static ATAN_TABLE: LazyLock<AtanTable> = LazyLock::new(|| {
+    let degrees = 180.0 / std::f64::consts::PI;
+    std::array::from_fn(|k| {
+        let c = (k as f64 + 0.5) / HALF_SEGMENTS - 1.0;
+        let s = 1.0 + c * c;
+        let derivatives = [c.atan(), 1.0 / s, -c / (s * s), (3.0 * c * c - 1.0) / (3.0 * s * s * s)];
+        // d/du = d/dt / HALF_SEGMENTS
+        std::array::from_fn(|n| derivatives[n] * degrees / HALF_SEGMENTS.powi(n as i32))
+    })
+});
+
+/// `atan(t)` in degrees from the table position `u = (t + 1) * HALF_SEGMENTS` in
+/// `[0, 2 * HALF_SEGMENTS]`, within 1e-10 degrees.
+fn table_atan_deg(table: &AtanTable, u: f64) -> f64 {
+    let k = u as usize;
+    let d = u - k as f64 - 0.5;
+    let [a0, a1, a2, a3] = table[k];
+    // Estrin's scheme: a shorter dependency chain than Horner's.
+    (a0 + d * a1) + (d * d) * (a2 + d * a3)
+}
+
+/// Buffers reused across the candidate heights of the fit.
+#[derive(Default)]
+struct Scratch {
+    elevations: Vec<f64>,
+    counts: Vec<u32>,
+}
+
 /// Sum of squared bin probabilities: 1/bins for a flat histogram, 1 when all points share a bin.
-fn sharpness(sample: &[Point3<f32>], h: f64, bin_deg: f32) -> f64 {
-    let elevations: Vec<f64> = sample.iter().map(|p| elevation_deg(p, h)).collect();
-    let Some(histogram) = Histogram::new(&elevations, f64::from(bin_deg)) else {
+///
+/// The same histogram as [`Histogram::new`] of the exact elevations, bin for bin: each point is
+/// binned from its fast elevation, or from its exact one when the fast one is within its error
+/// bound of a bin edge.
+fn sharpness(polar: &Polar, h: f64, bin_deg: f32, scratch: &mut Scratch) -> f64 {
+    let bin = f64::from(bin_deg);
+    let elevations = &mut scratch.elevations;
+    let fast_range = polar.fast_elevations_deg(h, elevations);
+    let Some((lo, hi)) = exact_range(polar, h, elevations, fast_range) else {
         return 0.0;
     };
+    if !(bin > 0.0 && (hi - lo) / bin < 1e7) {
+        return 0.0;
+    }
+    let start = lo - 4.0 * bin;
+    let len = ((hi - start) / bin) as usize + 5;
+    let counts = &mut scratch.counts;
+    counts.clear();
+    counts.resize(len, 0);
+    // In bins: the error bound, plus the rounding of the bin position (below 1e7) and of 1 / bin.
+    let guard = FAST_ELEVATION_ERROR_DEG / bin + 1e-8;
+    let inv_bin = 1.0 / bin;
+    for (i, &e) in elevations.iter().enumerate() {
+        let q = (e - start) * inv_bin;
+        if q.is_nan() {
+            continue;
+        }
+        let k = q as u32;
+        let fraction = q - f64::from(k);
+        let k = if fraction > guard && fraction < 1.0 - guard {
+            k as usize
+        } else {
+            ((polar.elevation_deg(i, h) - start) / bin) as usize
+        };
+        counts[k.min(len - 1)] += 1;
+    }
     let total = elevations.len() as f64;
-    histogram.counts.iter().map(|&c| (c / total).powi(2)).sum()
+    counts.iter().map(|&c| (f64::from(c) / total).powi(2)).sum()
+}
+
+/// The exact lowest and highest elevations (`None` if all are NaN), given the fast ones: only
+/// points within twice the error bound of the fast extremes can hold the exact ones.
+fn exact_range(polar: &Polar, h: f64, fast: &[f64], (lo, hi): (f64, f64)) -> Option<(f64, f64)> {
+    if lo > hi {
+        return None;
+    }
+    let margin = 2.0 * FAST_ELEVATION_ERROR_DEG;
+    let (mut exact_lo, mut exact_hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for (i, &e) in fast.iter().enumerate() {
+        if e <= lo + margin {
+            exact_lo = exact_lo.min(polar.elevation_deg(i, h));
+        }
+        if e >= hi - margin {
+            exact_hi = exact_hi.max(polar.elevation_deg(i, h));
+        }
+    }
+    Some((exact_lo, exact_hi))
 }
 
 /// Counts of elevations per bin.
@@ -401,5 +539,24 @@ mod tests {
         assert_eq!(one.ring, vec![0]);
         let zero_bin = ClusterOptions { bin_deg: 0.0, ..ClusterOptions::default() };
         assert_eq!(cluster_rings(&[Point3::new(1.0, 0.0, 0.0)], &zero_bin).ring, vec![0]);
+    }
+
+    #[test]
+    fn fast_elevations_stay_within_their_error_bound() {
+        // Tangents densely across [-1.2, 1.2] (beyond 1 the exact path applies), at short and long
+        // ranges, seen from several heights.
+        let points: Vec<Point3<f32>> = (0..200_001)
+            .flat_map(|i| {
+                let t = -1.2 + 2.4 * f64::from(i) / 200_000.0;
+                [0.7, 13.0, 90.0].map(|r: f64| Point3::new((r * 0.6) as f32, (r * 0.8) as f32, (r * t) as f32))
+            })
+            .collect();
+        let polar = Polar::new(&points);
+        let mut fast = Vec::new();
+        for h in [-0.37, 0.0, 0.2] {
+            polar.fast_elevations_deg(h, &mut fast);
+            let worst = fast.iter().zip(&points).map(|(f, p)| (f - elevation_deg(p, h)).abs()).fold(0.0, f64::max);
+            assert!(worst < FAST_ELEVATION_ERROR_DEG / 10.0, "h {h}: {worst:e} degrees");
+        }
     }
 }
