@@ -565,6 +565,45 @@ impl Core {
     }
 }
 
+/// How often a request for everything that nobody answered is made (see [`fetch`]).
+const FETCH_ATTEMPTS: usize = 5;
+/// The pause before such a request is made again.
+const FETCH_RETRY: Duration = Duration::from_millis(500);
+
+/// One request to a robot's keyframe store; every reply goes to the loop. Returns the number of
+/// replies (keyframes and errors).
+async fn ask(
+    session: &Session,
+    key: &str,
+    robot: u32,
+    request: &KeyframeRequest,
+    events: &mpsc::UnboundedSender<Event>,
+) -> usize {
+    // No consolidation: every reply is a distinct keyframe, possibly on the same key.
+    let asked = session
+        .get(key)
+        .payload(request.encode_to_vec())
+        .consolidation(ConsolidationMode::None)
+        .timeout(BACKFILL_TIMEOUT)
+        .await;
+    let mut answers = 0;
+    match asked {
+        Ok(replies) => {
+            while let Ok(reply) = replies.recv_async().await {
+                answers += 1;
+                match reply.result() {
+                    Ok(sample) => {
+                        let _ = events.send(Event::Reply { robot, sample: sample.clone() });
+                    }
+                    Err(e) => debug!("robot {robot} keyframe store: {:?}", e.payload().to_bytes()),
+                }
+            }
+        }
+        Err(e) => warn!("cannot query {key}: {e}"),
+    }
+    answers
+}
+
 /// Sleeps until `deadline` (forever when there is none).
 async fn sleep_until(deadline: Option<tokio::time::Instant>) {
     match deadline {
@@ -582,6 +621,10 @@ async fn join(job: &mut Option<JoinHandle<JobResult>>) -> Result<JobResult, Join
 }
 
 /// Asks a robot's keyframe store and forwards every reply to the loop.
+///
+/// A robot's liveliness token and its queryable are declared separately and may reach this
+/// session in either order: a request for everything made on the token alone can find no store
+/// yet. Such a request that nobody answered is made again, a few times, a moment later.
 async fn fetch(
     session: Session,
     key: String,
@@ -589,25 +632,12 @@ async fn fetch(
     request: KeyframeRequest,
     events: mpsc::UnboundedSender<Event>,
 ) {
-    // No consolidation: every reply is a distinct keyframe, possibly on the same key.
-    let asked = session
-        .get(&key)
-        .payload(request.encode_to_vec())
-        .consolidation(ConsolidationMode::None)
-        .timeout(BACKFILL_TIMEOUT)
-        .await;
-    match asked {
-        Ok(replies) => {
-            while let Ok(reply) = replies.recv_async().await {
-                match reply.result() {
-                    Ok(sample) => {
-                        let _ = events.send(Event::Reply { robot, sample: sample.clone() });
-                    }
-                    Err(e) => debug!("robot {robot} keyframe store: {:?}", e.payload().to_bytes()),
-                }
-            }
+    for attempt in 1..=FETCH_ATTEMPTS {
+        let answers = ask(&session, &key, robot, &request, &events).await;
+        if answers > 0 || request.from_seq.is_none() || attempt == FETCH_ATTEMPTS {
+            break;
         }
-        Err(e) => warn!("cannot query {key}: {e}"),
+        tokio::time::sleep(FETCH_RETRY).await;
     }
     let _ = events.send(Event::BackfillDone { robot });
 }
