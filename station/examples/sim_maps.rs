@@ -1,0 +1,97 @@
+//! Robot maps of a simulated scenario with their exact relative transforms, for comparing global
+//! registration methods on clouds whose ground truth is known to the last bit.
+//!
+//! ```text
+//! cargo run --release -p station --example sim_maps -- SCENARIO OUT_DIR [--stride 10] [--voxel 0.1]
+//! ```
+//!
+//! For each robot `r` of the scenario, `OUT_DIR/map{r}.ply` (binary PLY, x y z) holds every
+//! `stride`-th sweep, each point placed by the exact pose at its own firing time, expressed in the
+//! robot's pose at t = 0 and voxel-downsampled (as `robot_map` in station/tests/merge.rs). For each
+//! ordered pair of robots `a != b`, `OUT_DIR/truth_{a}_{b}.txt` holds the 4x4 row-major matrix
+//! `T0_a⁻¹ T0_b` mapping map `b`'s points into map `a`'s frame: the `--reference` of
+//! `emr-station bench merge OUT_DIR/map{b}.ply OUT_DIR/map{a}.ply`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::Parser;
+use cloud::PointCloud;
+use cloud::formats::{FileFormat, PlyEncoding, write_cloud};
+use edge::sim::{Scenario, SimConfig, Simulator};
+use nalgebra::Isometry3;
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
+
+#[derive(Parser)]
+struct Args {
+    /// Built-in scenario (warehouse-small, warehouse-large, campus, aisles).
+    scenario: String,
+    /// Directory for map{r}.ply and truth_{a}_{b}.txt (created if missing).
+    out_dir: PathBuf,
+    /// Use every `stride`-th sweep.
+    #[arg(long, default_value_t = 10)]
+    stride: usize,
+    /// Voxel size of each sweep and of the map (m).
+    #[arg(long, default_value_t = 0.1)]
+    voxel: f32,
+}
+
+/// Robot `robot`'s map in its frame at t = 0, and that frame's world pose.
+fn robot_map(
+    scenario: &Scenario,
+    robot: usize,
+    stride: usize,
+    voxel: f32,
+) -> anyhow::Result<(PointCloud, Isometry3<f64>)> {
+    let sim = Simulator::new(scenario.clone(), robot, SimConfig::default())?;
+    let origin = sim.pose_at(0.0);
+    let to_map = origin.inverse();
+    let frames: Vec<usize> = (0..sim.frames()).step_by(stride.max(1)).collect();
+    let sweeps = frames
+        .par_iter()
+        .map(|&f| {
+            let scan = sim.scan(f);
+            let times = scan.cloud.time.as_ref().context("simulated sweeps carry per-point time")?;
+            // Points of one column share a firing time: one pose per column.
+            let mut poses: FxHashMap<u32, Isometry3<f32>> = FxHashMap::default();
+            let points = scan.cloud.points.iter().zip(times).map(|(p, &t)| {
+                let pose = poses
+                    .entry(t.to_bits())
+                    .or_insert_with(|| (to_map * sim.pose_at(scan.stamp + f64::from(t))).cast::<f32>());
+                *pose * p
+            });
+            Ok(cloud::voxel::downsample(&PointCloud::from_points(points.collect()), voxel)?)
+        })
+        .collect::<anyhow::Result<Vec<PointCloud>>>()?;
+    let all = PointCloud::from_points(sweeps.into_iter().flat_map(|s| s.points).collect());
+    Ok((cloud::voxel::downsample(&all, voxel)?, origin))
+}
+
+/// Writes `m` as four lines of four numbers.
+fn write_matrix(path: &Path, m: &Isometry3<f64>) -> anyhow::Result<()> {
+    let h = m.to_homogeneous();
+    let text: String =
+        h.row_iter().map(|row| row.iter().map(|v| format!("{v:.15e}")).collect::<Vec<_>>().join(" ") + "\n").collect();
+    std::fs::write(path, text).with_context(|| path.display().to_string())
+}
+
+fn main() -> anyhow::Result<()> {
+    let args = Args::parse();
+    let scenario = Scenario::by_name(&args.scenario)?;
+    std::fs::create_dir_all(&args.out_dir).with_context(|| args.out_dir.display().to_string())?;
+    let mut frames = Vec::new();
+    for r in 0..scenario.robots().len() {
+        let (map, origin) = robot_map(&scenario, r, args.stride, args.voxel)?;
+        let path = args.out_dir.join(format!("map{r}.ply"));
+        write_cloud(&path, &map, FileFormat::Ply(PlyEncoding::BinaryLittleEndian))?;
+        println!("{}: {} points", path.display(), map.len());
+        frames.push(origin);
+    }
+    for (a, fa) in frames.iter().enumerate() {
+        for (b, fb) in frames.iter().enumerate().filter(|&(b, _)| b != a) {
+            write_matrix(&args.out_dir.join(format!("truth_{a}_{b}.txt")), &(fa.inverse() * fb))?;
+        }
+    }
+    Ok(())
+}
