@@ -7,7 +7,7 @@
 //!
 //! For each robot `r` of the scenario, `OUT_DIR/map{r}.ply` (binary PLY, x y z) holds every
 //! `stride`-th sweep, each point placed by the exact pose at its own firing time, expressed in the
-//! robot's pose at t = 0 and voxel-downsampled (as `robot_map` in station/tests/merge.rs). For each
+//! robot's pose at t = 0 and voxel-downsampled (`Simulator::exact_map`, as in station/tests/merge.rs). For each
 //! ordered pair of robots `a != b`, `OUT_DIR/truth_{a}_{b}.txt` holds the 4x4 row-major matrix
 //! `T0_a⁻¹ T0_b` mapping map `b`'s points into map `a`'s frame: the `--reference` of
 //! `emr-station bench merge OUT_DIR/map{b}.ply OUT_DIR/map{a}.ply`.
@@ -20,8 +20,6 @@ use cloud::PointCloud;
 use cloud::formats::{FileFormat, PlyEncoding, write_cloud};
 use edge::sim::{Scenario, SimConfig, Simulator};
 use nalgebra::Isometry3;
-use rayon::prelude::*;
-use rustc_hash::FxHashMap;
 
 #[derive(Parser)]
 struct Args {
@@ -45,27 +43,7 @@ fn robot_map(
     voxel: f32,
 ) -> anyhow::Result<(PointCloud, Isometry3<f64>)> {
     let sim = Simulator::new(scenario.clone(), robot, SimConfig::default())?;
-    let origin = sim.pose_at(0.0);
-    let to_map = origin.inverse();
-    let frames: Vec<usize> = (0..sim.frames()).step_by(stride.max(1)).collect();
-    let sweeps = frames
-        .par_iter()
-        .map(|&f| {
-            let scan = sim.scan(f);
-            let times = scan.cloud.time.as_ref().context("simulated sweeps carry per-point time")?;
-            // Points of one column share a firing time: one pose per column.
-            let mut poses: FxHashMap<u32, Isometry3<f32>> = FxHashMap::default();
-            let points = scan.cloud.points.iter().zip(times).map(|(p, &t)| {
-                let pose = poses
-                    .entry(t.to_bits())
-                    .or_insert_with(|| (to_map * sim.pose_at(scan.stamp + f64::from(t))).cast::<f32>());
-                *pose * p
-            });
-            Ok(cloud::voxel::downsample(&PointCloud::from_points(points.collect()), voxel)?)
-        })
-        .collect::<anyhow::Result<Vec<PointCloud>>>()?;
-    let all = PointCloud::from_points(sweeps.into_iter().flat_map(|s| s.points).collect());
-    Ok((cloud::voxel::downsample(&all, voxel)?, origin))
+    Ok((sim.exact_map(stride, voxel)?, sim.pose_at(0.0)))
 }
 
 /// Writes `m` as four lines of four numbers.

@@ -5,8 +5,6 @@ use cloud::PointCloud;
 use cloud::se3::{PoseError, pose_error};
 use edge::sim::{Scenario, SimConfig, Simulator};
 use nalgebra::{Isometry3, Point3};
-use rayon::prelude::*;
-use rustc_hash::FxHashMap;
 use station::merge::merger::MergerStats;
 use station::merge::{
     MapStatus, MergeConfig, MergeError, MergeReport, Merger, PairRejection, PairVerdict, Unmerged, merge,
@@ -25,41 +23,10 @@ impl SimMaps {
     }
 }
 
-/// Every `stride`-th sweep of robot `robot`, each point placed in the world by the exact pose at its
-/// own firing time, then expressed in the robot's pose at t = 0 and voxelised.
+/// Robot `robot`'s exact map ([`Simulator::exact_map`]) and the world pose of its frame.
 fn robot_map(scenario: &Scenario, robot: usize, stride: usize, voxel: f32) -> (PointCloud, Isometry3<f64>) {
     let sim = Simulator::new(scenario.clone(), robot, SimConfig::default()).unwrap();
-    let origin = sim.pose_at(0.0);
-    let to_map = origin.inverse();
-    let sweeps: Vec<PointCloud> = (0..sim.frames())
-        .step_by(stride)
-        .collect::<Vec<_>>()
-        .par_iter()
-        .map(|&f| {
-            let scan = sim.scan(f);
-            let times = scan.cloud.time.as_ref().expect("simulated sweeps carry per-point time");
-            // Points of one column share a firing time: one pose per column.
-            let mut poses: FxHashMap<u32, Isometry3<f32>> = FxHashMap::default();
-            let points = scan
-                .cloud
-                .points
-                .iter()
-                .zip(times)
-                .map(|(p, &t)| {
-                    let pose = poses
-                        .entry(t.to_bits())
-                        .or_insert_with(|| (to_map * sim.pose_at(scan.stamp + f64::from(t))).cast::<f32>());
-                    *pose * p
-                })
-                .collect();
-            cloud::voxel::downsample(&PointCloud::from_points(points), voxel).unwrap()
-        })
-        .collect();
-    let mut all = PointCloud::default();
-    for s in &sweeps {
-        all.points.extend_from_slice(&s.points);
-    }
-    (cloud::voxel::downsample(&all, voxel).unwrap(), origin)
+    (sim.exact_map(stride, voxel).unwrap(), sim.pose_at(0.0))
 }
 
 fn sim_maps(name: &str, stride: usize, voxel: f32) -> SimMaps {

@@ -1,8 +1,10 @@
 //! The scan generator: fires every ray of a sweep from the sensor pose at its own firing time.
 
+use cloud::voxel::{InvalidVoxelSize, downsample};
 use cloud::{Channels, PointCloud};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
+use rustc_hash::FxHashMap;
 
 use super::geometry::Ray;
 use super::noise::SplitMix;
@@ -153,6 +155,31 @@ impl Simulator {
     /// All sweeps of the scenario, in order.
     pub fn scans(&self) -> impl Iterator<Item = Scan> + '_ {
         (0..self.frames()).map(|f| self.scan(f))
+    }
+
+    /// The map a perfect odometry would make: every `stride`-th sweep, each point placed by the
+    /// exact pose at its own firing time, expressed in the sensor frame at t = 0 (`pose_at(0.0)`
+    /// in the world), voxel-downsampled per sweep and as a whole. Ground truth for map merging.
+    pub fn exact_map(&self, stride: usize, voxel: f32) -> Result<PointCloud, InvalidVoxelSize> {
+        let to_map = self.pose_at(0.0).inverse();
+        let frames: Vec<usize> = (0..self.frames()).step_by(stride.max(1)).collect();
+        let sweeps = frames
+            .par_iter()
+            .map(|&f| {
+                let scan = self.scan(f);
+                let times = scan.cloud.time.as_deref().unwrap_or_default();
+                // Points of one column share a firing time: one pose per column.
+                let mut poses: FxHashMap<u32, Isometry3<f32>> = FxHashMap::default();
+                let points = scan.cloud.points.iter().zip(times).map(|(p, &t)| {
+                    let pose = poses
+                        .entry(t.to_bits())
+                        .or_insert_with(|| (to_map * self.pose_at(scan.stamp + f64::from(t))).cast::<f32>());
+                    *pose * p
+                });
+                downsample(&PointCloud::from_points(points.collect()), voxel)
+            })
+            .collect::<Result<Vec<PointCloud>, _>>()?;
+        downsample(&PointCloud::from_points(sweeps.into_iter().flat_map(|s| s.points).collect()), voxel)
     }
 
     /// Fires every beam of one column from the sensor pose at the column's firing time.
