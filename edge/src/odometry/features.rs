@@ -154,7 +154,7 @@ fn select(ring: &mut Ring, k: usize, config: &FeatureConfig, thinning: &mut Thin
             edges += 1;
             suppress_neighbours(ring, i, k, config.suppression_gap);
         }
-        // Planes: every reliable point flatter than the threshold (thinned later by voxel).
+        // Planes: every reliable point flatter than the threshold, the first of its voxel.
         for i in lo..hi {
             if ring.smoothness[i] < config.plane_threshold
                 && !ring.blocked[i]

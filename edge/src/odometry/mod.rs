@@ -443,7 +443,7 @@ impl Odometry {
             ms
         };
         let mut since = clock;
-        let raw = self.extract(scan)?;
+        let raw = features::extract(scan, self.config.scan_period, &self.config.features)?;
         let features_ms = lap(&mut since);
         // Stage 1: deskew with the predicted (previous) motion, predict the pose with it (eq. 2).
         let predicted = self.pose * cloud::se3::exp(&self.motion.0);
@@ -513,11 +513,6 @@ impl Odometry {
             estimate = solve(&motion, estimate.pose);
         }
         estimate
-    }
-
-    /// Features of the raw scan (thinned to one per voxel).
-    fn extract(&self, scan: &PointCloud) -> Result<Features, OdometryError> {
-        Ok(features::extract(scan, self.config.scan_period, &self.config.features)?)
     }
 
     /// A keyframe when the robot moved or turned enough since the last one (the first scan always is).

@@ -326,11 +326,9 @@ fn sharpness(polar: &Polar, h: f64, bin_deg: f32, scratch: &mut Scratch) -> f64 
     let Some((lo, hi)) = exact_range(polar, h, elevations, fast_range) else {
         return 0.0;
     };
-    if !(bin > 0.0 && (hi - lo) / bin < 1e7) {
+    let Some((start, len)) = bin_layout(lo, hi, bin) else {
         return 0.0;
-    }
-    let start = lo - 4.0 * bin;
-    let len = ((hi - start) / bin) as usize + 5;
+    };
     let counts = &mut scratch.counts;
     counts.clear();
     counts.resize(len, 0);
@@ -374,6 +372,17 @@ fn exact_range(polar: &Polar, h: f64, fast: &[f64], (lo, hi): (f64, f64)) -> Opt
     Some((exact_lo, exact_hi))
 }
 
+/// The first bin's start and the number of bins of a histogram of values in `[lo, hi]`: a margin
+/// of a few bins so that edge peaks still have a valley beside them. `None` for an empty range, a
+/// bin width that is not positive, or bins so fine that the histogram would not fit in memory.
+fn bin_layout(lo: f64, hi: f64, bin: f64) -> Option<(f64, usize)> {
+    if !(lo <= hi && bin > 0.0 && (hi - lo) / bin < 1e7) {
+        return None;
+    }
+    let start = lo - 4.0 * bin;
+    Some((start, ((hi - start) / bin) as usize + 5))
+}
+
 /// Counts of elevations per bin.
 struct Histogram {
     start: f64,
@@ -387,13 +396,7 @@ impl Histogram {
     fn new(values: &[f64], bin: f64) -> Option<Self> {
         let finite = values.iter().copied().filter(|v| v.is_finite());
         let (lo, hi) = finite.clone().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
-        // Also refuse bins so fine that the histogram would not fit in memory.
-        if !(lo <= hi && bin > 0.0 && (hi - lo) / bin < 1e7) {
-            return None;
-        }
-        // A margin of a few bins so that edge peaks still have a valley beside them.
-        let start = lo - 4.0 * bin;
-        let len = ((hi - start) / bin) as usize + 5;
+        let (start, len) = bin_layout(lo, hi, bin)?;
         let mut counts = vec![0.0; len];
         for v in finite {
             counts[(((v - start) / bin) as usize).min(len - 1)] += 1.0;
