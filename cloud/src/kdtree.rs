@@ -74,6 +74,15 @@ impl KdTree {
         found.into_iter().map(|r| Neighbour { index: r.item as usize, dist_sq: r.distance }).collect()
     }
 
+    /// Calls `visit(index, squared distance)` for every point within `radius` of `q`, in no
+    /// particular order (cheaper than [`KdTree::within`] when the caller sorts or sums anyway).
+    pub fn for_each_within(&self, q: &[f32; 3], radius: f32, mut visit: impl FnMut(usize, f32)) {
+        let Some(tree) = &self.tree else { return };
+        for r in tree.query(q).within::<SquaredEuclidean<f32>>(radius * radius).unsorted().execute() {
+            visit(r.item as usize, r.distance);
+        }
+    }
+
     /// `knn` for many queries at once, in parallel; one result per query, in query order.
     pub fn knn_batch(&self, queries: &[[f32; 3]], k: usize) -> Vec<Vec<Neighbour>> {
         queries.par_iter().map(|q| self.knn(q, k)).collect()

@@ -1,8 +1,9 @@
 //! Step 2-3 — one pairwise estimate: global registration, VGICP refinement, confidence.
 
-use cloud::registration::{Method, Target, align_gaussians};
+use cloud::eigen3::symmetric_eigen3;
+use cloud::registration::{GaussianCloud, Method, Target, align_gaussians};
 use cloud::se3::pose_error;
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
 use super::ambiguity::{RunnerUp, mean_displacement, runner_up, upright_support};
@@ -138,10 +139,12 @@ pub fn estimate_pair(
     // between the VGICP input points arbitrates (identical maps: the voxel means pull VGICP a
     // centimetre off the exact answer, which this catches). Not on the feature surfels: at 0.4 m
     // their spacing hides decimetres, and the truth can score worse than a transform 12 cm off.
-    let refined = refine(map_b, map_a, &global.transform, config).filter(|t| {
-        mean_squared_gap(map_b, map_a, t, config) <= mean_squared_gap(map_b, map_a, &global.transform, config)
-    });
+    let fine_gap =
+        |t: &Isometry3<f64>| mean_squared_gap(map_b.fine.as_ref(), map_a.fine.as_ref(), t, config.refine_voxel);
+    let refined =
+        refine(map_b, map_a, &global.transform, config).filter(|t| fine_gap(t) <= fine_gap(&global.transform));
     let transform = refined.unwrap_or(global.transform);
+    let transform = finish(map_b, map_a, &transform, config).unwrap_or(transform);
     let scores = score_at(&transform);
     let reject = |reason| PairVerdict::Rejected { reason, best: Some(scores), best_transform: Some(transform) };
     if scores.score < config.min_confidence {
@@ -204,22 +207,59 @@ fn ambiguity(alternative: &RunnerUp, inliers: usize, support: f64) -> f64 {
 
 /// Truncated mean squared distance from the source's VGICP input points (at most
 /// [`GAP_SAMPLES`], evenly spread) to their nearest target point: `mean(min(d², v²))` with `v` the
-/// refinement voxel. The truncation makes points outside the overlap count the same under both
-/// transforms compared, so that the overlap decides; infinite when the clouds are missing.
-fn mean_squared_gap(source: &PreparedMap, target: &PreparedMap, t: &Isometry3<f64>, config: &MergeConfig) -> f64 {
-    let (Some(s), Some(q)) = (source.fine.as_ref(), target.fine.as_ref()) else { return f64::INFINITY };
-    let cap = f64::from(config.refine_voxel).powi(2);
-    let stride = (s.len() / GAP_SAMPLES).max(1);
-    let (sum, count) = (0..s.len())
+/// voxel they were downsampled to. The truncation makes points outside the overlap count the same
+/// under both transforms compared, so that the overlap decides; infinite when a cloud is missing.
+fn mean_squared_gap(
+    source: Option<&GaussianCloud>,
+    target: Option<&GaussianCloud>,
+    t: &Isometry3<f64>,
+    voxel: f32,
+) -> f64 {
+    let (Some(s), Some(q)) = (source, target) else { return f64::INFINITY };
+    let cap = f64::from(voxel).powi(2);
+    sampled_mean(s.len(), |i| {
+        let p = t * Point3::from(s.points[i]);
+        q.nearest(&p.coords, cap).map_or(cap, |j| (q.mean(j) - p.coords).norm_squared().min(cap))
+    })
+}
+
+/// The mean of `value(i)` over at most [`GAP_SAMPLES`] evenly spread indices below `len`;
+/// infinite when `len` is 0.
+fn sampled_mean(len: usize, value: impl Fn(usize) -> f64 + Sync) -> f64 {
+    let stride = (len / GAP_SAMPLES).max(1);
+    let (sum, count) = (0..len)
         .into_par_iter()
         .step_by(stride)
-        .map(|i| {
-            let p = t * Point3::from(s.points[i]);
-            q.nearest(&p.coords, cap).map_or(cap, |j| (q.mean(j) - p.coords).norm_squared().min(cap))
-        })
+        .map(&value)
         .fold(|| (0.0, 0usize), |(sum, n), d| (sum + d, n + 1))
         .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     if count == 0 { f64::INFINITY } else { sum / count as f64 }
+}
+
+/// Per target point, the normal of its covariance (the eigenvector of the smallest eigenvalue).
+fn plane_normals(target: &GaussianCloud) -> Vec<Vector3<f64>> {
+    target.covariances.par_iter().map(|c| symmetric_eigen3(c).vectors.column(0).into_owned()).collect()
+}
+
+/// [`mean_squared_gap`] measured along the target's normals: `mean(min((n·(p − q))², v²))`.
+///
+/// Two maps voxelised in different frames have their points up to half a voxel apart along a
+/// surface, so the point-to-point gap is dominated by that offset and can prefer a transform a
+/// centimetre off; across the surface both samplings agree, and that is what this measures.
+fn mean_squared_plane_gap(
+    source: &GaussianCloud,
+    target: &GaussianCloud,
+    normals: &[Vector3<f64>],
+    t: &Isometry3<f64>,
+    voxel: f32,
+) -> f64 {
+    let cap = f64::from(voxel).powi(2);
+    sampled_mean(source.len(), |i| {
+        let p = t * Point3::from(source.points[i]);
+        target
+            .nearest(&p.coords, cap)
+            .map_or(cap, |j| normals[j as usize].dot(&(p.coords - target.mean(j))).powi(2).min(cap))
+    })
 }
 
 /// Source points the refinement arbitration measures: enough for a stable mean, cheap per pair.
@@ -238,4 +278,22 @@ pub fn refine(
     let plausible =
         moved.translation_m <= config.max_refine_translation && moved.rotation_deg <= config.max_refine_rotation_deg;
     (plausible && result.inliers > 0).then_some(result.transform)
+}
+
+/// The finishing pass from `init` (see [`super::FinishConfig`]), if configured, converged within
+/// its reach and leaves no larger gap between its own input points.
+fn finish(
+    source: &PreparedMap,
+    target: &PreparedMap,
+    init: &Isometry3<f64>,
+    config: &MergeConfig,
+) -> Option<Isometry3<f64>> {
+    let f = config.finish.as_ref()?;
+    let (s, t) = (source.finish.as_ref()?, target.finish.as_ref()?);
+    let result = align_gaussians(s, t, init, Method::Vgicp, &f.registration).ok()?;
+    let moved = pose_error(&result.transform, init);
+    let normals = plane_normals(t);
+    let gap = |x: &Isometry3<f64>| mean_squared_plane_gap(s, t, &normals, x, f.voxel);
+    (result.inliers > 0 && moved.translation_m <= f.max_translation && gap(&result.transform) <= gap(init))
+        .then_some(result.transform)
 }

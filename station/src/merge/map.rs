@@ -19,22 +19,29 @@ pub struct PreparedMap {
     pub coarse: Option<MapFeatures>,
     /// The map at [`MergeConfig::refine_voxel`] with covariances; `None` when too small to refine.
     pub fine: Option<GaussianCloud>,
+    /// The map at [`super::FinishConfig::voxel`] with covariances, when a finishing pass is configured.
+    pub finish: Option<GaussianCloud>,
 }
 
 impl PreparedMap {
     /// Drops non-finite points, then computes the features and the VGICP Gaussians concurrently.
     pub fn new(mut cloud: PointCloud, config: &MergeConfig) -> Self {
         let dropped_non_finite = cloud.retain_finite();
-        let ((features, coarse), fine) = rayon::join(
+        let ((features, coarse), (fine, finish)) = rayon::join(
             || {
                 rayon::join(
                     || MapFeatures::compute(&cloud, &config.pairwise),
                     || config.coarse.as_ref().and_then(|c| MapFeatures::compute(&cloud, c).ok()),
                 )
             },
-            || fine_gaussians(&cloud, config),
+            || {
+                rayon::join(
+                    || gaussians(&cloud, config.refine_voxel, config.refine.neighbours),
+                    || config.finish.as_ref().and_then(|f| gaussians(&cloud, f.voxel, f.registration.neighbours)),
+                )
+            },
         );
-        Self { cloud, dropped_non_finite, features, coarse, fine }
+        Self { cloud, dropped_non_finite, features, coarse, fine, finish }
     }
 
     /// The features if the map is usable.
@@ -48,10 +55,10 @@ impl PreparedMap {
     }
 }
 
-/// The map downsampled for VGICP with its covariances, if enough points remain to fix a pose.
-fn fine_gaussians(cloud: &PointCloud, config: &MergeConfig) -> Option<GaussianCloud> {
-    let down = downsample(cloud, config.refine_voxel).ok()?;
+/// The map downsampled to `voxel` with covariances over `neighbours` points, if enough points
+/// remain to fix a pose.
+fn gaussians(cloud: &PointCloud, voxel: f32, neighbours: usize) -> Option<GaussianCloud> {
+    let down = downsample(cloud, voxel).ok()?;
     // Covariances need a neighbourhood; fewer points than neighbours gives no usable shape.
-    (down.len() >= MIN_POINTS.max(config.refine.neighbours))
-        .then(|| GaussianCloud::new(&down.points, config.refine.neighbours))
+    (down.len() >= MIN_POINTS.max(neighbours)).then(|| GaussianCloud::new(&down.points, neighbours))
 }

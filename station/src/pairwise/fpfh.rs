@@ -111,7 +111,7 @@ pub fn spfh(surfels: &Surfels, i: usize, neighbours: &[usize]) -> Fpfh {
 /// Step 4: the FPFH of each keypoint, or `None` for keypoints with too few neighbours.
 pub fn fpfh_at(surfels: &Surfels, keypoints: &[usize], config: &FpfhConfig) -> Vec<Option<Fpfh>> {
     let neighbourhood = |i: usize| -> Vec<usize> {
-        surfels.neighbours(i, config.radius, config.max_neighbours).iter().map(|q| q.index).collect()
+        surfels.neighbours(i, config.radius, config.max_neighbours).iter().map(|q| q.index()).collect()
     };
     let keypoint_nn: Vec<Vec<usize>> = keypoints.par_iter().map(|&i| neighbourhood(i)).collect();
     // Only neighbours with a normal count towards the minimum.

@@ -71,9 +71,9 @@ pub fn harris_response(surfels: &Surfels, radius: f32, k: f64) -> Vec<f64> {
             let (sum, count) = surfels
                 .neighbours(i, radius, usize::MAX)
                 .iter()
-                .filter(|q| surfels.has_normal(q.index))
+                .filter(|q| surfels.has_normal(q.index()))
                 .fold((Matrix3::zeros(), 0usize), |(acc, count), q| {
-                    let n: Vector3<f64> = surfels.normals[q.index].cast();
+                    let n: Vector3<f64> = surfels.normals[q.index()].cast();
                     (acc + n * n.transpose(), count + 1)
                 });
             let c = sum / count.max(1) as f64;
@@ -105,7 +105,7 @@ fn local_maxima(surfels: &Surfels, response: &[f64], radius: f32) -> Vec<usize> 
         .filter(|&i| {
             surfels.has_normal(i)
                 && surfels.neighbours(i, radius, usize::MAX).iter().all(|q| {
-                    let (j, r) = (q.index, response[q.index]);
+                    let (j, r) = (q.index(), response[q.index()]);
                     j == i || r < response[i] || (r == response[i] && i < j)
                 })
         })

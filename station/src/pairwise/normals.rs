@@ -18,7 +18,7 @@
 
 use cloud::PointCloud;
 use cloud::eigen3::symmetric_eigen3;
-use cloud::kdtree::{KdTree, Neighbour};
+use cloud::kdtree::KdTree;
 use cloud::moments::mean_covariance;
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
@@ -79,30 +79,73 @@ impl NormalConfig {
     }
 }
 
+/// One entry of a shared neighbour list: half the size of a [`cloud::kdtree::Neighbour`], because a map's lists
+/// hold tens of millions of entries (80 per point at the indoor reach).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Near {
+    index: u32,
+    /// Squared distance to the point whose list holds this entry, m².
+    pub dist_sq: f32,
+}
+
+impl Near {
+    /// Index of the neighbour in the surfels.
+    pub fn index(&self) -> usize {
+        self.index as usize
+    }
+}
+
 /// Every point's neighbours within a fixed reach, nearest first, computed once and shared by the
 /// later steps (the k-d tree's radius search dominates their cost otherwise).
+///
+/// The lists are stored per block of [`BLOCK`] consecutive points, each block built by one task
+/// into one buffer: no allocation per point and no final copy of the whole set.
 pub struct Neighbourhoods {
     reach: f32,
-    offsets: Vec<usize>,
-    entries: Vec<Neighbour>,
+    blocks: Vec<NeighbourBlock>,
+}
+
+/// Points per block of lists.
+const BLOCK: usize = 1024;
+
+/// The lists of [`BLOCK`] consecutive points.
+struct NeighbourBlock {
+    /// `BLOCK + 1` (fewer in the last block) bounds into `entries`.
+    offsets: Vec<u32>,
+    entries: Vec<Near>,
 }
 
 impl Neighbourhoods {
     /// Radius searches of `reach` around every point, in parallel.
     pub fn build(points: &[Point3<f32>], tree: &KdTree, reach: f32) -> Self {
-        let lists: Vec<Vec<Neighbour>> = points.par_iter().map(|p| tree.within(&[p.x, p.y, p.z], reach)).collect();
-        let mut offsets = Vec::with_capacity(lists.len() + 1);
-        offsets.push(0);
-        for l in &lists {
-            offsets.push(offsets.last().copied().unwrap_or(0) + l.len());
-        }
-        Self { reach, offsets, entries: lists.concat() }
+        let blocks = points
+            .par_chunks(BLOCK)
+            .map(|chunk| {
+                let mut offsets = Vec::with_capacity(chunk.len() + 1);
+                let mut entries = Vec::new();
+                offsets.push(0);
+                for p in chunk {
+                    let start = entries.len();
+                    tree.for_each_within(&[p.x, p.y, p.z], reach, |index, dist_sq| {
+                        entries.push(Near { index: index as u32, dist_sq });
+                    });
+                    // Ties (common on gridded maps) go to the lower index, so lists do not depend on the tree.
+                    entries[start..]
+                        .sort_unstable_by(|a, b| a.dist_sq.total_cmp(&b.dist_sq).then(a.index.cmp(&b.index)));
+                    offsets.push(entries.len() as u32);
+                }
+                NeighbourBlock { offsets, entries }
+            })
+            .collect();
+        Self { reach, blocks }
     }
 
     /// The neighbours of point `i` within `radius` (at most the reach), itself included, nearest
     /// first, at most `max` of them.
-    pub fn of(&self, i: usize, radius: f32, max: usize) -> &[Neighbour] {
-        let all = &self.entries[self.offsets[i]..self.offsets[i + 1]];
+    pub fn of(&self, i: usize, radius: f32, max: usize) -> &[Near] {
+        let block = &self.blocks[i / BLOCK];
+        let k = i % BLOCK;
+        let all = &block.entries[block.offsets[k] as usize..block.offsets[k + 1] as usize];
         let within = all.partition_point(|n| n.dist_sq <= radius * radius);
         &all[..within.min(max)]
     }
@@ -139,7 +182,7 @@ impl Surfels {
 
     /// Points within `radius` (capped at the reach) of point `i`, itself included, nearest first,
     /// at most `max` of them.
-    pub fn neighbours(&self, i: usize, radius: f32, max: usize) -> &[Neighbour] {
+    pub fn neighbours(&self, i: usize, radius: f32, max: usize) -> &[Near] {
         self.neighbourhoods.of(i, radius, max)
     }
 
@@ -186,8 +229,8 @@ pub fn estimate_normals(cloud: &PointCloud, config: &NormalConfig, reach: f32) -
 }
 
 /// The least-squares plane normal of the neighbourhood, or `None` when it is (near) collinear.
-fn plane_normal(points: &[Point3<f32>], nn: &[Neighbour]) -> Option<Vector3<f32>> {
-    let (_, cov) = mean_covariance(nn.iter().map(|k| points[k.index].coords.cast::<f64>()));
+fn plane_normal(points: &[Point3<f32>], nn: &[Near]) -> Option<Vector3<f32>> {
+    let (_, cov) = mean_covariance(nn.iter().map(|k| points[k.index()].coords.cast::<f64>()));
     let eig = symmetric_eigen3(&cov);
     // A line (λ₁ ≈ 0) has no unique plane; its "normal" would be noise.
     if eig.values[2].is_nan() || eig.values[2] <= 0.0 || eig.values[1] < 1e-4 * eig.values[2] {
@@ -223,8 +266,8 @@ fn mass_directions(surfels: &Surfels, radius: f32) -> Vec<Vector3<f32>> {
         .map(|i| {
             let p = surfels.points[i];
             let nn = surfels.neighbours(i, radius, usize::MAX);
-            let offset =
-                nn.iter().fold(Vector3::<f32>::zeros(), |acc, k| acc + (surfels.points[k.index] - p)) / nn.len() as f32;
+            let offset = nn.iter().fold(Vector3::<f32>::zeros(), |acc, k| acc + (surfels.points[k.index()] - p))
+                / nn.len() as f32;
             // Balanced (the centroid lies in the plane within 1% of the radius): use the +z prior.
             let n = surfels.normals[i];
             if n.dot(&offset).abs() < 0.01 * radius { Vector3::z() } else { offset }
