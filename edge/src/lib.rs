@@ -1,5 +1,6 @@
 //! The robot side of EMR-FLOAM: scan sources (simulator and recordings), odometry, keyframes.
 
+pub mod memory;
 pub mod node;
 pub mod odometry;
 pub mod recording;

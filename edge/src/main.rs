@@ -10,6 +10,7 @@ use bus::NetworkArgs;
 use clap::builder::{PossibleValue, PossibleValuesParser};
 use clap::{Parser, Subcommand, ValueEnum};
 use cloud::trajectory::Trajectory;
+use edge::memory::{RELEASE_EVERY, configure_allocator, peak_rss_mb, release_free_memory, rss_mb};
 use edge::node::{self, NodeConfig, NodeSummary, Rate, SourceEnd};
 use edge::odometry::stats::RunStats;
 use edge::odometry::{Odometry, OdometryConfig};
@@ -311,6 +312,7 @@ enum BenchCommand {
 
 fn main() -> Result<()> {
     bus::init_logging();
+    configure_allocator();
     match Cli::parse().command {
         Command::Bench { what: BenchCommand::Codec { data, step, repeat } } => {
             let report = bench::codec(&data, step, repeat)?;
@@ -476,7 +478,7 @@ fn odometry(args: OdometryArgs) -> Result<()> {
     let mut odometry = Odometry::new(config)?;
     let mut stats = RunStats::default();
     let (mut rss_first, mut rss_half) = (None, None);
-    let half = source.len.map(|n| n / 2);
+    let (half, total, mut rss_last) = (source.len.map(|n| n / 2), source.len, None);
     let (mut est, mut gt) = (Trajectory { poses: vec![], stamps: Some(vec![]) }, Trajectory::default());
     for scan in source {
         let scan = match scan {
@@ -503,6 +505,13 @@ fn odometry(args: OdometryArgs) -> Result<()> {
         if Some(est.poses.len()) == half {
             rss_half = rss_mb();
         }
+        if Some(est.poses.len()) == total {
+            rss_last = rss_mb();
+        }
+        // The resident size is read before the trim: between two trims it is at its highest.
+        if est.poses.len() % RELEASE_EVERY == 0 {
+            release_free_memory();
+        }
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -510,7 +519,8 @@ fn odometry(args: OdometryArgs) -> Result<()> {
     let mut json = serde_json::to_value(&summary)?;
     json["peak_rss_mb"] = serde_json::json!(peak_rss_mb());
     // Memory must stay flat over long runs: resident memory after the first scan and at the end.
-    json["rss_mb"] = serde_json::json!({"after_first_scan": rss_first, "half_way": rss_half, "end": rss_mb()});
+    let rss_end = rss_last.or_else(rss_mb);
+    json["rss_mb"] = serde_json::json!({"after_first_scan": rss_first, "half_way": rss_half, "end": rss_end});
     if gt.poses.len() == est.poses.len() && !gt.poses.is_empty() {
         let first = gt.poses[0].inverse();
         gt.poses.iter_mut().for_each(|p| *p = first * *p);
@@ -624,23 +634,6 @@ fn evaluate(args: &EvalArgs) -> Result<()> {
 /// Writes a text file, naming it in the error.
 fn write(path: &std::path::Path, text: &str) -> Result<()> {
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
-}
-
-/// The process's peak resident memory (Linux `VmHWM`), MB; `None` elsewhere.
-fn peak_rss_mb() -> Option<f64> {
-    proc_status_mb("VmHWM:")
-}
-
-/// The process's current resident memory (Linux `VmRSS`), MB; `None` elsewhere.
-fn rss_mb() -> Option<f64> {
-    proc_status_mb("VmRSS:")
-}
-
-fn proc_status_mb(field: &str) -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with(field))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
 }
 
 /// A progress bar on stderr; indicatif draws nothing when stderr is not a terminal.

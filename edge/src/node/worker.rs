@@ -12,6 +12,7 @@ use tokio::sync::mpsc;
 use tracing::{error, warn};
 
 use super::{NodeError, Rate};
+use crate::memory::{RELEASE_EVERY, release_free_memory};
 use crate::odometry::{Keyframe, Odometry};
 use crate::source::{Source, SourceScan};
 use crate::wire;
@@ -58,11 +59,16 @@ impl Worker {
     /// Runs until the source ends or the receiver is closed (shutdown) or dropped.
     pub(crate) fn run(mut self, tx: mpsc::Sender<Registered>) -> Result<(), NodeError> {
         let mut pacer = Pacer::new(self.rate);
+        let mut scans = 0;
         while let Some(scan) = self.next_scan() {
             if !pacer.wait_for(scan.stamp, &tx) {
                 break;
             }
             let registered = self.register(scan)?;
+            scans += 1;
+            if scans % RELEASE_EVERY == 0 {
+                release_free_memory();
+            }
             if tx.blocking_send(registered).is_err() {
                 break;
             }

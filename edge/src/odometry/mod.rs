@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 
 use deskew::SweepMotion;
 use features::{FeatureError, Features};
-use local_map::{FeatureMap, ScanLine};
+use local_map::{FeatureMap, MAX_POINTS_PER_VOXEL, ScanLine};
 
 /// Feature extraction parameters (F-LOAM's reference values unless noted).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -101,6 +101,12 @@ pub struct MapConfig {
     /// through a small tree of their own). Default 10.
     #[serde(default = "default_rebuild_every")]
     pub rebuild_every: usize,
+    /// The map's memory budget in voxels, allocated at start (with `points_per_voxel` points
+    /// each, at most 4). When it is full, new voxels wait for the next rebuild, which keeps the
+    /// nearest 90 %. Defaults: edges 100 000, planes 28 000 indoor / 50 000 outdoor (the simulated
+    /// warehouses peak at 66 000 / 10 000, the campus at 80 000 / 29 000; each fills a power-of-two
+    /// voxel table to its 7/8 load limit).
+    pub max_voxels: usize,
 }
 
 fn default_rebuild_every() -> usize {
@@ -276,6 +282,7 @@ impl OdometryConfig {
                 min_point_distance: 0.05,
                 radius: 40.0,
                 rebuild_every: 10,
+                max_voxels: 100_000,
             },
             // 0.6 m plane voxels: sparser patches span more scan lines, so fewer neighbourhoods
             // are two parallel ring traces (which fit a plane exactly, between two surfaces);
@@ -286,6 +293,7 @@ impl OdometryConfig {
                 min_point_distance: 0.15,
                 radius: 40.0,
                 rebuild_every: 10,
+                max_voxels: 28_000,
             },
             solver: SolverConfig { min_line_elevation_deg: 60.0, plane_gate: 3.0, ..SolverConfig::default() },
             keyframes: KeyframeConfig::default(),
@@ -311,6 +319,7 @@ impl OdometryConfig {
                 min_point_distance: 0.1,
                 radius: 100.0,
                 rebuild_every: 10,
+                max_voxels: 100_000,
             },
             plane_map: MapConfig {
                 voxel_size: 0.8,
@@ -318,6 +327,7 @@ impl OdometryConfig {
                 min_point_distance: 0.2,
                 radius: 100.0,
                 rebuild_every: 10,
+                max_voxels: 50_000,
             },
             keyframes: KeyframeConfig { distance: 2.0, angle_deg: 15.0, voxel: 0.2 },
             solver: SolverConfig { degeneracy_ratio: 0.002, min_line_elevation_deg: 30.0, ..SolverConfig::default() },
@@ -408,6 +418,14 @@ impl Odometry {
         ];
         if let Some((name, v)) = positive.iter().find(|(_, v)| !(*v > 0.0 && v.is_finite())) {
             return Err(OdometryError::Config(format!("{name} must be positive, got {v}")));
+        }
+        for (name, map) in [("edge_map", &config.edge_map), ("plane_map", &config.plane_map)] {
+            if !(1..=MAX_POINTS_PER_VOXEL).contains(&map.points_per_voxel) || map.max_voxels == 0 {
+                return Err(OdometryError::Config(format!(
+                    "{name}: points_per_voxel must be 1 to {MAX_POINTS_PER_VOXEL} and max_voxels at least 1, got {} and {}",
+                    map.points_per_voxel, map.max_voxels
+                )));
+            }
         }
         Ok(Odometry {
             edge_map: FeatureMap::new(config.edge_map.clone()),

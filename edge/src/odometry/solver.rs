@@ -467,12 +467,14 @@ mod tests {
     }
 
     fn map_of(points: &[Point3<f32>]) -> FeatureMap {
+        // Voxels as fine as the test grids: every point stays.
         let mut m = FeatureMap::new(MapConfig {
             voxel_size: 0.1,
-            points_per_voxel: 10,
+            points_per_voxel: 4,
             min_point_distance: 0.0,
             radius: 1000.0,
             rebuild_every: 1,
+            max_voxels: points.len().max(1),
         });
         m.insert(points.iter().enumerate().map(|(i, p)| (*p, ScanLine::new(i, 0))), &Isometry3::identity());
         m.crop_and_rebuild(&Point3::origin());
