@@ -8,6 +8,7 @@ pub mod eigen3;
 pub mod formats;
 pub mod kdtree;
 pub mod moments;
+pub mod ordered_tree;
 pub mod point_cloud;
 pub mod registration;
 pub mod se3;

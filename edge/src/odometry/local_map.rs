@@ -7,13 +7,16 @@
 //! [`MapConfig::rebuild_every`] scans, and a small one over the points added since, rebuilt after
 //! every scan. A query merges the two answers, so every point is searchable from the next scan on.
 //!
-//! Memory is a budget fixed at construction: the voxel table, the points and the scratch space of
-//! the crop are allocated (and written once, so that the pages are resident) for
+//! Memory is a budget fixed at construction: the voxel table, the points, the large tree
+//! ([`OrderedKdTree`], which orders the map's own points rather than copying them) and the scratch
+//! space of the crop are allocated (and written once, so that the pages are resident) for
 //! [`MapConfig::max_voxels`] voxels of [`MapConfig::points_per_voxel`] points. A run never grows
 //! them; when the budget is full, new voxels wait until the next rebuild drops the voxels farthest
-//! from the robot. Only the search trees, rebuilt over the points present, follow the map's size.
+//! from the robot. Only the small tree of recent points follows the map's size (a quarter of it
+//! at most).
 
 use cloud::kdtree::{KdTree, Neighbour};
+use cloud::ordered_tree::OrderedKdTree;
 use cloud::voxel::VoxelKey;
 use nalgebra::{Isometry3, Point3};
 use rustc_hash::FxHashMap;
@@ -28,13 +31,14 @@ pub const MAX_POINTS_PER_VOXEL: usize = 4;
 pub struct FeatureMap {
     config: MapConfig,
     voxels: FxHashMap<VoxelKey, VoxelPoints>,
-    /// Points of the last full rebuild, then the points added since (indices continue).
+    /// Points of the last full rebuild in the large tree's order, then the points added since
+    /// (indices continue).
     points: Vec<Point3<f32>>,
     lines: Vec<ScanLine>,
-    /// Scratch of the crop: each point's index after compaction.
+    /// Scratch of the rebuild: each point's index after compaction, then in the tree's order.
     moved_to: Vec<u32>,
     /// Tree over `points[..base]`.
-    tree: KdTree,
+    tree: OrderedKdTree,
     base: usize,
     /// Tree over `points[base..]` (indices relative to `base`).
     recent: KdTree,
@@ -96,7 +100,7 @@ impl FeatureMap {
             points: reserved(capacity, Point3::origin()),
             lines: reserved(capacity, ScanLine(0)),
             moved_to: reserved(capacity, DROPPED),
-            tree: KdTree::new(&[]),
+            tree: OrderedKdTree::with_capacity(capacity),
             base: 0,
             recent: KdTree::new(&[]),
             scans_since_rebuild: 0,
@@ -176,9 +180,7 @@ impl FeatureMap {
         }
         self.voxels.retain(|k, _| distance_sq(k) <= r2);
         self.compact();
-        // The old tree goes first, so that two never coexist.
-        self.tree = KdTree::new(&[]);
-        self.tree = KdTree::from_points(&self.points);
+        self.arrange_for_tree();
         self.base = self.points.len();
         self.recent = KdTree::new(&[]);
         self.scans_since_rebuild = 0;
@@ -211,12 +213,36 @@ impl FeatureMap {
         }
     }
 
+    /// Builds the large tree over all points and puts them (and their voxels' indices) in its order.
+    fn arrange_for_tree(&mut self) {
+        let order = self.tree.build(&self.points);
+        let position = &mut self.moved_to;
+        position.clear();
+        position.resize(order.len(), 0);
+        for (new, &old) in order.iter().enumerate() {
+            position[old as usize] = new as u32;
+        }
+        for v in self.voxels.values_mut() {
+            for k in 0..v.len as usize {
+                v.index[k] = position[v.index[k] as usize];
+            }
+        }
+        // Each swap puts one point where it belongs; `position` follows the point it displaced.
+        for i in 0..position.len() {
+            while position[i] as usize != i {
+                let to = position[i] as usize;
+                self.points.swap(i, to);
+                self.lines.swap(i, to);
+                position.swap(i, to);
+            }
+        }
+    }
+
     /// The `k` nearest map points to `q` within `radius`, closest first.
     pub fn knn(&self, q: &Point3<f32>, k: usize, radius: f32) -> Vec<Neighbour> {
-        let q = [q.x, q.y, q.z];
-        let mut found = self.tree.knn_within(&q, k, radius);
+        let mut found = self.tree.knn_within(&self.points, q, k, radius);
         if !self.recent.is_empty() {
-            let recent = self.recent.knn_within(&q, k, radius);
+            let recent = self.recent.knn_within(&[q.x, q.y, q.z], k, radius);
             found.extend(recent.into_iter().map(|n| Neighbour { index: n.index + self.base, ..n }));
             found.sort_by(|a, b| a.dist_sq.total_cmp(&b.dist_sq));
             found.truncate(k);
@@ -310,6 +336,12 @@ mod tests {
         let q = Point3::new(20.5, 0.75, 0.5);
         let nearest = map.knn(&q, 1, 0.1);
         assert_eq!(map.point(nearest[0].index), q);
+        // After compaction and the tree's reordering, every voxel still names its own points.
+        for (key, v) in &map.voxels {
+            assert!(v.indices().iter().all(|&i| VoxelKey::of(&map.point(i as usize), 1.0) == *key));
+        }
+        let named: usize = map.voxels.values().map(|v| v.len as usize).sum();
+        assert_eq!(named, map.len());
     }
 
     #[test]
