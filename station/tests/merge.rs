@@ -240,6 +240,9 @@ fn degenerate_inputs_to_merge() {
     assert!(matches!(merge(&maps, &config), Err(MergeError::UnusableReference { .. })));
     let bad = MergeConfig { output_voxel: 0.0, ..MergeConfig::outdoor() };
     assert!(matches!(merge(&maps, &bad), Err(MergeError::Config(_))));
+    let finish = station::merge::FinishConfig { max_rotation_deg: f64::NAN, ..station::merge::FinishConfig::outdoor() };
+    let bad = MergeConfig { finish: Some(finish), ..MergeConfig::outdoor() };
+    assert!(matches!(merge(&maps, &bad), Err(MergeError::Config(_))));
 }
 
 /// The station's live preset (`emr-station run` default: 0.4 m features, which whole-building maps

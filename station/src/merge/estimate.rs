@@ -281,7 +281,7 @@ pub fn refine(
 }
 
 /// The finishing pass from `init` (see [`super::FinishConfig`]), if configured, converged within
-/// its reach and leaves no larger gap between its own input points.
+/// its reach and leaves no larger point-to-plane gap between its own input points.
 fn finish(
     source: &PreparedMap,
     target: &PreparedMap,
@@ -294,6 +294,6 @@ fn finish(
     let moved = pose_error(&result.transform, init);
     let normals = plane_normals(t);
     let gap = |x: &Isometry3<f64>| mean_squared_plane_gap(s, t, &normals, x, f.voxel);
-    (result.inliers > 0 && moved.translation_m <= f.max_translation && gap(&result.transform) <= gap(init))
-        .then_some(result.transform)
+    let near = moved.translation_m <= f.max_translation && moved.rotation_deg <= f.max_rotation_deg;
+    (result.inliers > 0 && near && gap(&result.transform) <= gap(init)).then_some(result.transform)
 }

@@ -13,8 +13,9 @@
 //!    distance (capped at [`MergeConfig::refine_voxel`]²) between the VGICP input points than the
 //!    global transform; otherwise the global transform stands. Outdoor, a last VGICP pass on
 //!    finer input ([`MergeConfig::finish`]) takes the centimetre the 1 m voxels leave down to
-//!    millimetres; it is kept if it moved less than [`FinishConfig::max_translation`] and leaves
-//!    no larger truncated mean squared point-to-plane distance.
+//!    millimetres; it is kept if it moved less than [`FinishConfig::max_translation`] /
+//!    [`FinishConfig::max_rotation_deg`] and leaves no larger truncated mean squared
+//!    point-to-plane distance.
 //! 3. **Confidence.** What is published per edge is the *overlap-aware score*
 //!    `s = √(overlap · inlier_ratio)` of [`crate::pairwise::confidence`], recomputed at the final
 //!    (refined) transform: `overlap` is the share of source surfels with a target surfel within
@@ -85,6 +86,9 @@ pub struct FinishConfig {
     /// The pass may move the refined transform by at most this much, metres (default 0.05: it
     /// starts within a centimetre or two; more is a slide along a weakly constrained direction).
     pub max_translation: f64,
+    /// ... and turn it by at most this much, degrees (default 0.5: the pass corrects hundredths of
+    /// a degree; a turn about the map origin moves far points while the translation stays small).
+    pub max_rotation_deg: f64,
 }
 
 impl FinishConfig {
@@ -100,6 +104,7 @@ impl FinishConfig {
                 ..RegistrationConfig::default()
             },
             max_translation: 0.05,
+            max_rotation_deg: 0.5,
         }
     }
 }
@@ -211,8 +216,9 @@ impl MergeConfig {
             c.validate().map_err(MergeError::Config)?;
         }
         let positive = |v: f64| v > 0.0 && v.is_finite();
-        let finish_ok =
-            self.finish.as_ref().is_none_or(|f| positive(f64::from(f.voxel)) && positive(f.max_translation));
+        let finish_ok = self.finish.as_ref().is_none_or(|f| {
+            positive(f64::from(f.voxel)) && positive(f.max_translation) && positive(f.max_rotation_deg)
+        });
         let ok = finish_ok
             && positive(f64::from(self.refine_voxel))
             && positive(f64::from(self.output_voxel))
