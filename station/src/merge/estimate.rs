@@ -3,7 +3,7 @@
 use cloud::eigen3::symmetric_eigen3;
 use cloud::registration::{GaussianCloud, Method, Target, align_gaussians};
 use cloud::se3::pose_error;
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
 use super::ambiguity::{RunnerUp, mean_displacement, runner_up, upright_support};
@@ -236,29 +236,21 @@ fn sampled_mean(len: usize, value: impl Fn(usize) -> f64 + Sync) -> f64 {
     if count == 0 { f64::INFINITY } else { sum / count as f64 }
 }
 
-/// Per target point, the normal of its covariance (the eigenvector of the smallest eigenvalue).
-fn plane_normals(target: &GaussianCloud) -> Vec<Vector3<f64>> {
-    target.covariances.par_iter().map(|c| symmetric_eigen3(c).vectors.column(0).into_owned()).collect()
-}
-
-/// [`mean_squared_gap`] measured along the target's normals: `mean(min((n·(p − q))², v²))`.
+/// [`mean_squared_gap`] measured along the target's normals: `mean(min((n·(p − q))², v²))`, with
+/// `n` the eigenvector of the smallest eigenvalue of the nearest target point's covariance
+/// (computed for the sampled matches only, not for the whole target).
 ///
 /// Two maps voxelised in different frames have their points up to half a voxel apart along a
 /// surface, so the point-to-point gap is dominated by that offset and can prefer a transform a
 /// centimetre off; across the surface both samplings agree, and that is what this measures.
-fn mean_squared_plane_gap(
-    source: &GaussianCloud,
-    target: &GaussianCloud,
-    normals: &[Vector3<f64>],
-    t: &Isometry3<f64>,
-    voxel: f32,
-) -> f64 {
+fn mean_squared_plane_gap(source: &GaussianCloud, target: &GaussianCloud, t: &Isometry3<f64>, voxel: f32) -> f64 {
     let cap = f64::from(voxel).powi(2);
     sampled_mean(source.len(), |i| {
         let p = t * Point3::from(source.points[i]);
-        target
-            .nearest(&p.coords, cap)
-            .map_or(cap, |j| normals[j as usize].dot(&(p.coords - target.mean(j))).powi(2).min(cap))
+        target.nearest(&p.coords, cap).map_or(cap, |j| {
+            let normal = symmetric_eigen3(target.covariance(j)).vectors.column(0).into_owned();
+            normal.dot(&(p.coords - target.mean(j))).powi(2).min(cap)
+        })
     })
 }
 
@@ -292,8 +284,7 @@ fn finish(
     let (s, t) = (source.finish.as_ref()?, target.finish.as_ref()?);
     let result = align_gaussians(s, t, init, Method::Vgicp, &f.registration).ok()?;
     let moved = pose_error(&result.transform, init);
-    let normals = plane_normals(t);
-    let gap = |x: &Isometry3<f64>| mean_squared_plane_gap(s, t, &normals, x, f.voxel);
+    let gap = |x: &Isometry3<f64>| mean_squared_plane_gap(s, t, x, f.voxel);
     let near = moved.translation_m <= f.max_translation && moved.rotation_deg <= f.max_rotation_deg;
     (result.inliers > 0 && near && gap(&result.transform) <= gap(init)).then_some(result.transform)
 }
