@@ -94,6 +94,10 @@ impl Network {
     }
 }
 
+/// The station's zenoh port: where it listens and where edges and tools connect by default
+/// (zenoh's own default port, so a stock `zenohd` router also sits there).
+pub const DEFAULT_PORT: u16 = 7447;
+
 /// `tcp/127.0.0.1:PORT`.
 pub fn endpoint(port: u16) -> String {
     format!("tcp/127.0.0.1:{port}")

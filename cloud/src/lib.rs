@@ -10,9 +10,11 @@ pub mod kdtree;
 pub mod moments;
 pub mod ordered_tree;
 pub mod point_cloud;
+pub mod preset;
 pub mod registration;
 pub mod se3;
 pub mod trajectory;
 pub mod voxel;
 
 pub use point_cloud::{Channels, PointCloud};
+pub use preset::Preset;

@@ -9,6 +9,7 @@ use anyhow::{Context, Result, bail};
 use bus::NetworkArgs;
 use clap::builder::{PossibleValue, PossibleValuesParser};
 use clap::{Parser, Subcommand, ValueEnum};
+use cloud::Preset;
 use cloud::trajectory::Trajectory;
 use edge::memory::{RELEASE_EVERY, configure_allocator, peak_rss_mb, release_free_memory, rss_mb};
 use edge::node::{self, NodeConfig, NodeSummary, Rate, SourceEnd};
@@ -101,9 +102,6 @@ struct RunArgs {
     network: NetworkArgs,
 }
 
-/// The station's loopback port `emr-edge run` connects to without network options (zenoh's usual port).
-const DEFAULT_PORT: u16 = 7447;
-
 /// Paces of `emr-edge run`.
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum RateArg {
@@ -130,7 +128,7 @@ struct TuningArgs {
     #[arg(long)]
     config: Option<PathBuf>,
     /// Preset the configuration starts from: indoor (warehouses, ranges under ~40 m) or outdoor.
-    #[arg(long, value_enum, default_value_t = Preset::Indoor)]
+    #[arg(long, default_value_t = Preset::Indoor)]
     preset: Preset,
     /// Turn motion compensation off: for recordings published already compensated (KITTI's).
     #[arg(long)]
@@ -153,15 +151,6 @@ struct OdometryArgs {
     /// Print the configuration that would be used (TOML) and exit.
     #[arg(long)]
     print_config: bool,
-}
-
-/// Configuration presets.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum Preset {
-    /// Finer maps, 40 m crop.
-    Indoor,
-    /// F-LOAM's KITTI resolutions, 100 m crop.
-    Outdoor,
 }
 
 /// Arguments of `emr-edge eval`.
@@ -551,7 +540,7 @@ fn run(args: RunArgs) -> Result<()> {
         on_source_end: args.summary.clone().map(|path| summary_writer(path, robot)),
         ..NodeConfig::new(args.fleet.clone(), robot, args.source.clone())
     };
-    let network = args.network.joining(DEFAULT_PORT);
+    let network = args.network.joining(bus::DEFAULT_PORT);
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build().context("cannot start tokio")?;
     let summary = runtime.block_on(async {
         // Listen for the signals before anything slow, so that an early Ctrl-C still stops cleanly.

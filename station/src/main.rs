@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use bus::Network;
+use cloud::Preset;
 use clap::{Parser, Subcommand, ValueEnum};
 use edge::node::Rate;
 use nalgebra::Isometry3;
@@ -66,7 +67,7 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
         /// Parameter preset: indoor (0.1 m features) or outdoor (0.4 m).
-        #[arg(long, value_enum, default_value_t = Preset::Outdoor)]
+        #[arg(long, default_value_t = Preset::Outdoor)]
         preset: Preset,
         /// 0-based position of the map whose frame is the global frame (default: the centre of the
         /// spanning tree).
@@ -89,7 +90,7 @@ enum Command {
         #[arg(long, value_enum, default_value_t = CliMethod::Global)]
         method: CliMethod,
         /// Parameter preset: indoor or outdoor.
-        #[arg(long, value_enum, default_value_t = Preset::Outdoor)]
+        #[arg(long, default_value_t = Preset::Outdoor)]
         preset: Preset,
         /// Write the transformed SOURCE cloud here (.ply binary, .pcd binary or .bin by extension).
         #[arg(long)]
@@ -129,7 +130,7 @@ enum Command {
         /// Merge preset: outdoor (0.4 m features) or indoor (0.1 m). Outdoor is the default even for
         /// buildings: the robots' maps grow to whole floors, where 0.1 m features are slow (5 s per
         /// merge of two warehouse halls) and find too few matches on maps bent by odometry drift.
-        #[arg(long, value_enum, default_value_t = Preset::Outdoor)]
+        #[arg(long, default_value_t = Preset::Outdoor)]
         preset: Preset,
         /// Quiet time after the last change before a merge starts, milliseconds.
         #[arg(long, default_value_t = 2000)]
@@ -193,7 +194,7 @@ enum Bench {
         #[arg(long, default_value_t = 3)]
         runs: usize,
         /// Parameter preset: indoor or outdoor.
-        #[arg(long, value_enum, default_value_t = Preset::Outdoor)]
+        #[arg(long, default_value_t = Preset::Outdoor)]
         preset: Preset,
     },
     /// A station under a simulated fleet: ROBOTS robots each publish a keyframe per scan at
@@ -216,19 +217,11 @@ enum Bench {
     },
 }
 
-/// Parameter presets.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum Preset {
-    Indoor,
-    Outdoor,
-}
-
-impl Preset {
-    fn config(self) -> MergeConfig {
-        match self {
-            Preset::Indoor => MergeConfig::indoor(),
-            Preset::Outdoor => MergeConfig::outdoor(),
-        }
+/// The merge configuration of a preset.
+fn preset_config(preset: Preset) -> MergeConfig {
+    match preset {
+        Preset::Indoor => MergeConfig::indoor(),
+        Preset::Outdoor => MergeConfig::outdoor(),
     }
 }
 
@@ -253,12 +246,12 @@ fn main() -> Result<()> {
             }
         }
         Command::Merge { maps, out, preset, reference } => {
-            let config = MergeConfig { reference, ..preset.config() };
+            let config = MergeConfig { reference, ..preset_config(preset) };
             let report = files::merge_files(&maps, &out, &config)?;
             print_merge(&maps, &report, &out);
         }
         Command::Align { source, target, init, method, preset, out } => {
-            align(&source, &target, init.as_deref(), method, &preset.config(), out.as_deref())?
+            align(&source, &target, init.as_deref(), method, &preset_config(preset), out.as_deref())?
         }
         Command::Bench(Bench::Load { robots, rate_hz, seconds, scenario }) => {
             let config = LoadConfig { robots, rate_hz, seconds, scenario, ..LoadConfig::new() };
@@ -284,30 +277,27 @@ fn main() -> Result<()> {
         Command::Run { fleet, data_dir, preset, debounce_ms, max_delay_ms, network } => {
             let config = StationConfig {
                 data_dir: Some(data_dir),
-                merge: preset.config(),
+                merge: preset_config(preset),
                 debounce: Duration::from_millis(debounce_ms),
                 max_delay: Duration::from_millis(max_delay_ms),
                 ..StationConfig::new(Fleet::new(&fleet)?)
             };
             let rt = runtime()?;
-            rt.block_on(run_station(config, network.network(&[DEFAULT_PORT])))?;
+            rt.block_on(run_station(config, network.network(&[bus::DEFAULT_PORT])))?;
             // A merge still running on a blocking thread has nothing left to publish to.
             rt.shutdown_timeout(Duration::from_secs(1));
         }
         Command::Watch { keyexpr, count, json, network } => {
-            runtime()?.block_on(watch(&keyexpr, count, json, network.joining(DEFAULT_PORT)))?
+            runtime()?.block_on(watch(&keyexpr, count, json, network.joining(bus::DEFAULT_PORT)))?
         }
         Command::Save { fleet, out, transforms, timeout_s, network } => {
             let timeout = Duration::try_from_secs_f64(timeout_s).context("--timeout-s")?;
             let fleet = Fleet::new(&fleet)?;
-            runtime()?.block_on(save(&fleet, &out, transforms.as_deref(), timeout, network.joining(DEFAULT_PORT)))?
+            runtime()?.block_on(save(&fleet, &out, transforms.as_deref(), timeout, network.joining(bus::DEFAULT_PORT)))?
         }
     }
     Ok(())
 }
-
-/// The port a station listens on, and watch / save connect to, without network options.
-const DEFAULT_PORT: u16 = 7447;
 
 fn runtime() -> Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_multi_thread().enable_all().build()?)
@@ -448,7 +438,7 @@ fn bench_merge(
         }
         _ => bail!("give both SOURCE and TARGET, or neither for the KITTI revisit pair"),
     };
-    let bench = bench_merge_files(&source, &target, reference.as_deref(), &preset.config().pairwise, runs)
+    let bench = bench_merge_files(&source, &target, reference.as_deref(), &preset_config(preset).pairwise, runs)
         .with_context(|| format!("benchmarking {} onto {}", source.display(), target.display()))?;
     print!("{bench}");
     Ok(())
