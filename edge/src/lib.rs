@@ -4,6 +4,5 @@ pub mod memory;
 pub mod node;
 pub mod odometry;
 pub mod recording;
-pub mod sim;
 pub mod source;
 pub mod wire;

@@ -16,7 +16,7 @@ use edge::node::{self, NodeConfig, NodeSummary, Rate, SourceEnd};
 use edge::odometry::stats::RunStats;
 use edge::odometry::{Odometry, OdometryConfig};
 use edge::recording::{self, RecordingOptions, RingModel, Spin, TimeModel};
-use edge::sim::{self, Scenario, SensorKind, SimConfig, Simulator};
+use sim::{Scenario, SensorKind, SimConfig, Simulator};
 use edge::source::{Source, SourceSpec};
 use indicatif::{ProgressBar, ProgressStyle};
 use proto::Fleet;

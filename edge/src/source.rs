@@ -6,9 +6,9 @@ use std::str::FromStr;
 
 use cloud::PointCloud;
 use nalgebra::Isometry3;
+use sim::{Scenario, SimConfig, SimError, Simulator, UnknownScenario};
 
 use crate::recording::{self, RecordingError, RecordingOptions};
-use crate::sim::{Scenario, SimConfig, SimError, Simulator, UnknownScenario};
 
 /// A scan source named on the command line.
 #[derive(Clone, Debug, PartialEq)]

@@ -5,11 +5,11 @@ use std::sync::Arc;
 
 use cloud::trajectory::ate;
 use edge::odometry::{Odometry, OdometryConfig};
-use edge::sim::geometry::{Cuboid, Object, Shape};
-use edge::sim::trajectory::{Trajectory, TrajectoryConfig};
-use edge::sim::world::{Terrain, World};
-use edge::sim::{Scenario, SimConfig, Simulator};
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
+use sim::geometry::{Cuboid, Object, Shape};
+use sim::trajectory::{Trajectory, TrajectoryConfig};
+use sim::world::{Terrain, World};
+use sim::{Scenario, SimConfig, Simulator};
 
 /// A 4 m wide corridor, walls 3 m high running far beyond the sensor's range; a closed end with
 /// pillars behind the start, so the robot gets up to speed with every direction observable.
@@ -40,7 +40,7 @@ fn run(degeneracy_ratio: f64) -> (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>, usiz
     let path =
         Trajectory::new(&[Point2::new(0.0, 0.0), Point2::new(60.0, 0.0)], false, &Terrain::Flat(0.0), &config).unwrap();
     let scenario = Scenario::new("corridor", "featureless corridor", world, vec![path]).with_frames(380);
-    let mut sensor = edge::sim::sensor::SensorModel::vlp16();
+    let mut sensor = sim::sensor::SensorModel::vlp16();
     // A 25 m range: the closed end drops out of sight after ~25 m and the corridor axis is lost.
     sensor.max_range = 25.0;
     let sim = Simulator::new(scenario, 0, SimConfig { sensor, ..SimConfig::default() }).unwrap();

@@ -3,8 +3,8 @@
 
 use cloud::trajectory::ate;
 use edge::odometry::{Odometry, OdometryConfig};
-use edge::sim::{Scenario, SimConfig, Simulator};
 use nalgebra::Isometry3;
+use sim::{Scenario, SimConfig, Simulator};
 
 /// Runs the odometry over the first `frames` sweeps of robot 1; returns (truth, estimate).
 fn run(frames: usize, deskew: bool) -> (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>) {

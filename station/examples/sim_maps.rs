@@ -18,8 +18,8 @@ use anyhow::Context;
 use clap::Parser;
 use cloud::PointCloud;
 use cloud::formats::{FileFormat, PlyEncoding, write_cloud};
-use edge::sim::{Scenario, SimConfig, Simulator};
 use nalgebra::Isometry3;
+use sim::{Scenario, SimConfig, Simulator};
 
 #[derive(Parser)]
 struct Args {

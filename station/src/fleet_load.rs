@@ -10,13 +10,13 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use edge::odometry::Keyframe;
-use edge::sim::{Scenario, SimConfig, Simulator};
 use edge::wire::keyframe_message;
 use prost::Message;
 use proto::codec::CodecConfig;
 use proto::{Fleet, keyexpr};
 use rayon::prelude::*;
 use serde::Serialize;
+use sim::{Scenario, SimConfig, Simulator};
 use tokio::sync::watch;
 
 use crate::service::{Station, StationConfig, StationError, StationProgress};

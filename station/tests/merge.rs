@@ -3,8 +3,8 @@
 
 use cloud::PointCloud;
 use cloud::se3::{PoseError, pose_error};
-use edge::sim::{Scenario, SimConfig, Simulator};
 use nalgebra::{Isometry3, Point3};
+use sim::{Scenario, SimConfig, Simulator};
 use station::merge::merger::MergerStats;
 use station::merge::{
     MapStatus, MergeConfig, MergeError, MergeReport, Merger, PairRejection, PairVerdict, Unmerged, merge,

@@ -8,10 +8,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use edge::sim::{Scenario, SimConfig, Simulator};
 use nalgebra::Isometry3;
 use prost::Message;
 use proto::{Fleet, GlobalMap, MergeStatus, StationStatus};
+use sim::{Scenario, SimConfig, Simulator};
 use station::service::client::fetch_global_map;
 
 /// Path of one of the workspace's binaries, built beside the running test executable.

@@ -19,6 +19,7 @@ use std::time::Duration;
 use nalgebra::Isometry3;
 use proto::codec::{CodecConfig, EncodeError};
 use proto::{Fleet, keyexpr};
+use sim::SimConfig;
 use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinHandle;
 use tracing::{info, warn};
@@ -30,7 +31,6 @@ use zenoh::qos::CongestionControl;
 
 use crate::odometry::{Odometry, OdometryConfig, OdometryError};
 use crate::recording::RecordingOptions;
-use crate::sim::SimConfig;
 use crate::source::{Source, SourceError, SourceSpec};
 use store::Store;
 use worker::{EncodedKeyframe, Registered, Worker};

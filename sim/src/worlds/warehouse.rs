@@ -11,9 +11,9 @@
 
 use super::rack::{self, Load, Run, STANDARD, Slot};
 use super::{Builder, material, route};
-use crate::sim::noise::SplitMix;
-use crate::sim::trajectory::{Trajectory, TrajectoryConfig};
-use crate::sim::world::{Terrain, World};
+use crate::noise::SplitMix;
+use crate::trajectory::{Trajectory, TrajectoryConfig};
+use crate::world::{Terrain, World};
 
 /// Ceiling height, metres.
 pub const CEILING: f64 = 9.0;

@@ -5,9 +5,9 @@ use std::fmt::Write as _;
 
 use nalgebra::Point2;
 
-use super::geometry::{Aabb, Shape};
-use super::scenario::Scenario;
-use super::world::Terrain;
+use crate::geometry::{Aabb, Shape};
+use crate::scenario::Scenario;
+use crate::world::Terrain;
 
 /// Drawing width of the larger side, pixels.
 const SIZE: f64 = 1000.0;

@@ -8,8 +8,8 @@
 
 use super::rack::{self, Load, Run, STANDARD, Slot};
 use super::{Builder, material, route};
-use crate::sim::trajectory::{Trajectory, TrajectoryConfig};
-use crate::sim::world::{Terrain, World};
+use crate::trajectory::{Trajectory, TrajectoryConfig};
+use crate::world::{Terrain, World};
 
 /// Ceiling height, metres.
 const CEILING: f64 = 9.0;

@@ -6,7 +6,7 @@
 //! than the rounding error of the f32 slab test, so they never cull a ray that the exact (f64)
 //! primitive test would hit: traversal is conservative and the exact test decides.
 
-use super::geometry::{Aabb, Hit, Object, Ray};
+use crate::geometry::{Aabb, Hit, Object, Ray};
 
 /// Centroid bins per axis when evaluating split candidates (16 is within a few percent of a full sweep).
 const BINS: usize = 16;

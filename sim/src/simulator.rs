@@ -6,11 +6,11 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
-use super::geometry::Ray;
-use super::noise::SplitMix;
-use super::scenario::Scenario;
-use super::sensor::SensorModel;
-use super::trajectory::Trajectory;
+use crate::geometry::Ray;
+use crate::noise::SplitMix;
+use crate::scenario::Scenario;
+use crate::sensor::SensorModel;
+use crate::trajectory::Trajectory;
 
 /// Simulator settings.
 #[derive(Clone, Debug, PartialEq)]

@@ -8,9 +8,9 @@
 //! within 6 mm of the analytic surface the robots drive on.
 
 use super::{Builder, material, route};
-use crate::sim::noise::SplitMix;
-use crate::sim::trajectory::{Trajectory, TrajectoryConfig};
-use crate::sim::world::{Terrain, Wave, World};
+use crate::noise::SplitMix;
+use crate::trajectory::{Trajectory, TrajectoryConfig};
+use crate::world::{Terrain, Wave, World};
 
 /// Road centre lines (both axes).
 const ROADS: [f64; 3] = [-60.0, 0.0, 60.0];

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use cloud::formats::{FileFormat, FormatError, write_cloud};
 
-use super::simulator::Simulator;
+use crate::simulator::Simulator;
 
 /// Why a sequence could not be written.
 #[derive(Debug, thiserror::Error)]

@@ -2,8 +2,8 @@
 
 use nalgebra::{Point3, Unit, Vector3};
 
-use super::bvh::Bvh;
-use super::geometry::{Aabb, Hit, Object, Plane, Ray, Shape, Triangle};
+use crate::bvh::Bvh;
+use crate::geometry::{Aabb, Hit, Object, Plane, Ray, Shape, Triangle};
 
 /// One sinusoidal component of a hilly ground: `amplitude · sin(kx·x + ky·y + phase)`.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -3,9 +3,9 @@
 use std::fmt;
 use std::time::Instant;
 
-use super::scenario::Scenario;
-use super::sensor::SensorKind;
-use super::simulator::{SimConfig, SimError, Simulator};
+use crate::scenario::Scenario;
+use crate::sensor::SensorKind;
+use crate::simulator::{SimConfig, SimError, Simulator};
 
 /// Why the benchmark could not run.
 #[derive(Debug, thiserror::Error)]

@@ -9,7 +9,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3};
 
-use super::world::Terrain;
+use crate::world::Terrain;
 
 /// Arc-length grid step of the lookup tables, metres: fine enough that the speed profile's
 /// piecewise-constant acceleration looks continuous to odometry.

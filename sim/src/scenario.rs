@@ -15,9 +15,9 @@
 
 use std::sync::Arc;
 
-use super::trajectory::Trajectory;
-use super::world::World;
-use super::worlds::{aisles, campus, warehouse};
+use crate::trajectory::Trajectory;
+use crate::world::World;
+use crate::worlds::{aisles, campus, warehouse};
 
 /// Frame rate the scenario lengths are counted in (all built-in sensors spin at 10 Hz).
 pub const FRAME_RATE: f64 = 10.0;

@@ -7,7 +7,7 @@
 //! turns one robot's motion into LiDAR sweeps.
 //!
 //! ```no_run
-//! use edge::sim::{Scenario, SimConfig, Simulator};
+//! use sim::{Scenario, SimConfig, Simulator};
 //! let scenario = Scenario::by_name("warehouse-small")?;
 //! let sim = Simulator::new(scenario, 0, SimConfig { seed: 7, ..SimConfig::default() })?;
 //! for scan in sim.scans().take(10) {
