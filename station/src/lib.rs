@@ -2,11 +2,9 @@
 //!
 //! [`pairwise`] aligns two robot maps without an initial guess (map_merge_3d's global registration).
 //! [`merge`] fuses N maps into one global map along a maximum spanning tree of pairwise estimates.
-//! [`service`] is the networked station (`emr-station run`); [`demo`] runs edges and a station in one
-//! process. Only those two touch the network.
+//! [`service`] is the networked station (`emr-station run`), the only part that touches the network.
+//! The station knows nothing of the robots' code: it sees them only through their messages.
 
-pub mod demo;
-pub mod fleet_load;
 pub mod merge;
 pub mod pairwise;
 pub mod service;

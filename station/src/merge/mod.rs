@@ -23,13 +23,12 @@
 //!    reported next to it ([`crate::pairwise::Confidence::fitness`]) but not used for decisions: unrelated maps whose
 //!    floors coincide score a high fitness. An edge enters the match graph when the pairwise
 //!    checks pass (inliers, overlap, score), `s ≥` [`MergeConfig::min_confidence`] — default
-//!    **0.09 outdoor** (true campus pairs score 0.097-0.23, a similar-looking unrelated street
-//!    0.06-0.08) and **0.12 indoor** (the pairwise default) — and the pair is not ambiguous
+//!    **0.09 outdoor** and **0.12 indoor** (the pairwise default) — and the pair is not ambiguous
 //!    ([`ambiguity`]: no distinct transform with more than half the inliers *and* more than half
-//!    the upright support, the share of wall-like surfels landing on a parallel target surface;
-//!    true pairs measure 0.01-0.18, the identical-rack halls of `aisles` 0.70 at 0.1 m and 0.53
-//!    at 0.4 m). The scores of a transform found by the coarse fallback are measured on the
-//!    coarse features (`warehouse-small`: score 0.17, 22 inliers).
+//!    the upright support, the share of wall-like surfels landing on a parallel target surface).
+//!    The scores of a transform found by the coarse fallback are measured on the coarse features.
+//!    Both thresholds sit between what the true and the false pairs of the simulated scenarios
+//!    measure; `station/tests/merge.rs` asserts those measurements.
 //! 4. **Match graph** ([`graph`]): a maximum spanning forest on the scores (Kruskal); the reference
 //!    component is the one holding [`MergeConfig::reference`] or else the largest one; its
 //!    reference map is the configured one or else the tree centre (least maximum hop count, so no
@@ -54,8 +53,8 @@ pub mod merger;
 
 use std::time::Duration;
 
-use cloud::PointCloud;
 use cloud::registration::RegistrationConfig;
+use cloud::{PointCloud, Preset};
 use nalgebra::Isometry3;
 
 use crate::pairwise::{FeatureError, PairwiseConfig};
@@ -151,6 +150,14 @@ impl Default for MergeConfig {
 }
 
 impl MergeConfig {
+    /// The settings of a named preset: [`Self::indoor`] or [`Self::outdoor`].
+    pub fn preset(preset: Preset) -> Self {
+        match preset {
+            Preset::Indoor => Self::indoor(),
+            Preset::Outdoor => Self::outdoor(),
+        }
+    }
+
     /// Streets, campuses: 0.4 m features, 0.25 m VGICP input, 0.2 m output, confidence ≥ 0.09.
     pub fn outdoor() -> Self {
         let mut pairwise = PairwiseConfig::outdoor();

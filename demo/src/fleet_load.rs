@@ -1,4 +1,4 @@
-//! `emr-station bench load`: a station under a simulated fleet's load.
+//! `emr-demo bench load`: a station under a simulated fleet's load.
 //!
 //! N robots publish one keyframe per scan at the sensor rate (10 Hz: ten times what a robot driving
 //! 1.5 m/s with 1 m keyframe spacing sends, the worst case) to an in-process station, each robot on
@@ -17,9 +17,8 @@ use proto::{Fleet, keyexpr};
 use rayon::prelude::*;
 use serde::Serialize;
 use sim::{Scenario, SimConfig, Simulator};
+use station::service::{Station, StationConfig, StationError, StationProgress};
 use tokio::sync::watch;
-
-use crate::service::{Station, StationConfig, StationError, StationProgress};
 
 /// What the benchmark does.
 #[derive(Clone, Debug)]

@@ -1,10 +1,15 @@
-//! `emr-station demo`: the whole system in one process, with no set-up.
+//! `emr-demo`: the whole system in one process, with no set-up.
 //!
 //! Two edges ([`edge::node`]) replay the simulated two-robot warehouse and a station
-//! ([`crate::service`]) merges their maps, each on its own zenoh session, peers on loopback: the
+//! ([`station::service`]) merges their maps, each on its own zenoh session, peers on loopback: the
 //! station listens on a free 127.0.0.1 port and the edges connect to it. When both robots' scans
 //! are done and the station has published a global map built from every keyframe, the demo stops
 //! everything and writes its results, judged against the simulator's ground truth.
+//!
+//! [`fleet_load`] puts a station under a simulated fleet's load the same way (`emr-demo bench load`).
+//! This crate is the one place where robot code and station code meet.
+
+pub mod fleet_load;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -17,13 +22,12 @@ use edge::source::SourceSpec;
 use nalgebra::Isometry3;
 use proto::{Fleet, GlobalMap, MergeStatus};
 use serde_json::{Value, json};
+use station::merge::MergeConfig;
+use station::merge::files::{self, FilesError};
+use station::service::client::{global_map_cloud, placements_json};
+use station::service::{Station, StationConfig, StationError};
 use tokio::sync::{mpsc, oneshot};
 use tracing::info;
-
-use crate::merge::MergeConfig;
-use crate::merge::files::{self, FilesError};
-use crate::service::client::{global_map_cloud, placements_json};
-use crate::service::{Station, StationConfig, StationError};
 
 /// What the demo runs.
 #[derive(Clone, Debug)]

@@ -1,7 +1,7 @@
-//! `emr-station demo` end to end on a short run: two edges and a station in one process over
+//! The demo end to end on a short run: two edges and a station in one process over
 //! loopback; the files it writes are checked against the simulator's truth.
 
-use station::demo::{self, DemoConfig};
+use demo::DemoConfig;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_demo_writes_maps_trajectories_and_scores() {

@@ -1,0 +1,148 @@
+//! `emr-demo`: the robots and the station of EMR-FLOAM in one process. Thin: parses arguments, sets
+//! up logging and calls the library.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::{Args, Parser, Subcommand};
+use demo::fleet_load::{self, LoadConfig};
+use demo::{DemoConfig, DemoReport};
+use edge::node::Rate;
+
+/// The whole EMR-FLOAM system on this machine, no set-up.
+///
+/// With no command (or `run`): the simulated two-robot warehouse, both edges and the station as
+/// tasks of one process talking over Zenoh on loopback. Ends by writing OUT/global_map.ply,
+/// OUT/placements.json, per robot its trajectory (estimated and ground truth, TUM, in the global
+/// frame) and OUT/summary.json (confidences, ATE per robot, timings).
+#[derive(Parser, Debug)]
+#[command(name = "emr-demo", version, about, long_about, args_conflicts_with_subcommands = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Run the demo (what `emr-demo` with no command does).
+    Run(RunArgs),
+    /// Benchmarks.
+    #[command(subcommand)]
+    Bench(Bench),
+}
+
+/// The demo's flags.
+#[derive(Args, Debug)]
+struct RunArgs {
+    /// Simulated scenario with two or more robots.
+    #[arg(long, default_value = "warehouse-large")]
+    scenario: String,
+    /// Robots of the scenario to run (1-based), comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    robots: Vec<u32>,
+    /// Scans per robot [default: the whole scenario].
+    #[arg(long)]
+    frames: Option<usize>,
+    /// Play scans at sensor speed (10 Hz) instead of as fast as the odometry goes.
+    #[arg(long)]
+    realtime: bool,
+    /// Output directory.
+    #[arg(long, default_value = "out/demo")]
+    out: PathBuf,
+}
+
+#[derive(Subcommand, Debug)]
+enum Bench {
+    /// A station under a simulated fleet: ROBOTS robots each publish a keyframe per scan at
+    /// RATE_HZ (simulated scans at true poses, prepared before the clock starts) to an in-process
+    /// station over loopback. Prints keyframes received per second, the largest backlog, merge
+    /// times and how long the station takes to catch up, as JSON.
+    Load {
+        /// Robots publishing.
+        #[arg(long, default_value_t = 8)]
+        robots: usize,
+        /// Keyframes per second per robot.
+        #[arg(long, default_value_t = 10.0)]
+        rate_hz: f64,
+        /// Seconds of publishing.
+        #[arg(long, default_value_t = 20.0)]
+        seconds: f64,
+        /// Scenario the robots come from.
+        #[arg(long, default_value = "campus")]
+        scenario: String,
+    },
+}
+
+fn main() -> Result<()> {
+    bus::init_logging();
+    let cli = Cli::parse();
+    match cli.command {
+        None => run_demo(cli.run)?,
+        Some(Command::Run(args)) => run_demo(args)?,
+        Some(Command::Bench(Bench::Load { robots, rate_hz, seconds, scenario })) => {
+            let config = LoadConfig { robots, rate_hz, seconds, scenario, ..LoadConfig::new() };
+            let report = runtime()?.block_on(fleet_load::run(config))?;
+            println!("{}", serde_json::to_string_pretty(&report)?);
+        }
+    }
+    Ok(())
+}
+
+fn run_demo(args: RunArgs) -> Result<()> {
+    let RunArgs { scenario, robots, frames, realtime, out } = args;
+    let config = DemoConfig {
+        scenario,
+        robots,
+        frames,
+        rate: if realtime { Rate::Realtime } else { Rate::Max },
+        out,
+        ..DemoConfig::new()
+    };
+    let report = runtime()?.block_on(async {
+        let interrupt = bus::shutdown_signal().context("cannot handle SIGINT/SIGTERM")?;
+        demo::run(config, interrupt).await.map_err(anyhow::Error::from)
+    })?;
+    print_demo(&report);
+    Ok(())
+}
+
+fn runtime() -> Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread().enable_all().build()?)
+}
+
+/// The demo's results as a table.
+fn print_demo(report: &DemoReport) {
+    let map = &report.global_map;
+    println!(
+        "global map revision {}: {} points, reference robot {}, {:.1} s wall, {} merges (last {:.0} ms)",
+        map.revision,
+        map.cloud.as_ref().map_or(0, |c| c.points),
+        map.reference_robot,
+        report.wall_s,
+        report.merge_ms.len(),
+        report.merge_ms.last().copied().unwrap_or(0.0)
+    );
+    println!(
+        "robot  scans  keyframes  status    confidence  placement error   odometry ATE aligned/unaligned  global ATE"
+    );
+    for r in &report.robots {
+        let placement = r.placement_error.map_or("-".into(), |(m, d)| format!("{:.1} cm {:.2} deg", m * 100.0, d));
+        let global = r.global_ate.map_or("-".into(), |a| format!("{:.1} cm", a.rmse * 100.0));
+        println!(
+            "{:>5}  {:>5}  {:>9}  {:<8}  {:>10.3}  {:>15}   {:>13.1} / {:.1} cm        {global:>10}",
+            r.robot,
+            r.frames,
+            r.keyframes,
+            if r.merged { "merged" } else { "unmerged" },
+            r.confidence,
+            placement,
+            r.odometry_ate.0.rmse * 100.0,
+            r.odometry_ate.1.rmse * 100.0,
+        );
+    }
+    for path in &report.written {
+        println!("wrote {}", path.display());
+    }
+}

@@ -1,0 +1,6 @@
+//! The commands of `emr-station`, one module per group: [`files`] work on point-cloud files,
+//! [`service`] runs or talks to the networked station, [`bench`] times the registration.
+
+pub mod bench;
+pub mod files;
+pub mod service;
