@@ -65,6 +65,6 @@ fn main() -> Result<()> {
         Command::Run(args) => service::run(args),
         Command::Watch(args) => service::watch(args),
         Command::Save(args) => service::save(args),
-        Command::Bench(bench) => bench::run(bench),
+        Command::Bench(which) => bench::run(which),
     }
 }
