@@ -7,7 +7,8 @@ use nalgebra::{Isometry3, Point3};
 use sim::{Scenario, SimConfig, Simulator};
 use station::merge::merger::MergerStats;
 use station::merge::{
-    MapStatus, MergeConfig, MergeError, MergeReport, Merger, PairRejection, PairVerdict, Unmerged, merge,
+    Edge, INDOOR_MIN_CONFIDENCE, MapStatus, MergeConfig, MergeError, MergeReport, Merger, OUTDOOR_MIN_CONFIDENCE,
+    PairRejection, PairVerdict, Unmerged, merge,
 };
 
 /// Robot maps of a scenario and the world pose of each map's frame.
@@ -57,6 +58,26 @@ fn describe(report: &MergeReport) -> String {
     s
 }
 
+/// The accepted edges of a merge.
+fn edges(report: &MergeReport) -> Vec<&Edge> {
+    report.pairs.iter().filter_map(|p| if let PairVerdict::Edge(e) = &p.verdict { Some(e) } else { None }).collect()
+}
+
+/// The upright support of the alternative that made the first pair ambiguous.
+fn ambiguous_support(report: &MergeReport) -> f64 {
+    match &report.pairs[0].verdict {
+        PairVerdict::Rejected { reason: PairRejection::Ambiguous { support, .. }, .. } => *support,
+        other => panic!("not refused as ambiguous: {other:?}"),
+    }
+}
+
+/// True pairs leave no strong alternative: their ambiguity is far below the 0.5 that refuses.
+fn assert_unambiguous(report: &MergeReport) {
+    for e in edges(report) {
+        assert!(e.ambiguity < 0.2, "pair {}-{}: ambiguity {:.2}", e.a, e.b, e.ambiguity);
+    }
+}
+
 /// Largest translation and rotation error over the merged maps.
 fn worst(errors: &[Option<PoseError>]) -> (f64, f64) {
     errors.iter().flatten().fold((0.0, 0.0), |(t, r), e| (t.max(e.translation_m), r.max(e.rotation_deg)))
@@ -72,6 +93,7 @@ fn warehouse_large_overlap_merges_within_5_cm() {
     println!("warehouse-large: worst error {t:.4} m, {r:.4} deg");
     assert!(t < 0.05 && r < 0.5, "{t} m, {r} deg");
     assert!(!report.global_map.is_empty());
+    assert_unambiguous(&report);
 }
 
 /// The small-overlap warehouse: the halls share what each robot saw through the door, sampled from
@@ -85,6 +107,11 @@ fn warehouse_small_overlap_merges_within_5_cm() {
     let (t, r) = worst(&errors(&report, &sim));
     println!("warehouse-small: worst error {t:.4} m, {r:.4} deg");
     assert!(t < 0.05 && r < 0.5, "{t} m, {r} deg");
+    assert_unambiguous(&report);
+    // Scored on the coarse features that found it.
+    let edge = edges(&report)[0];
+    assert!((0.12..0.25).contains(&edge.confidence.score), "score {:.3}", edge.confidence.score);
+    assert!((15..30).contains(&edge.inliers), "{} inliers", edge.inliers);
 }
 
 #[test]
@@ -96,11 +123,9 @@ fn aisles_identical_racks_in_separate_halls_are_refused() {
     let unmerged = report.maps.iter().find(|m| !m.is_merged()).unwrap();
     assert_eq!(unmerged.status, MapStatus::Unmerged(Unmerged::NoOverlap));
     assert_eq!(unmerged.transform(), Isometry3::identity());
-    assert!(
-        matches!(report.pairs[0].verdict, PairVerdict::Rejected { reason: PairRejection::Ambiguous { .. }, .. }),
-        "{:?}",
-        report.pairs[0].verdict
-    );
+    // Identical racks: the alternative hall holds most of the upright support at 0.1 m.
+    let support = ambiguous_support(&report);
+    assert!((0.6..0.8).contains(&support), "support {support:.2}");
 }
 
 #[test]
@@ -113,6 +138,13 @@ fn campus_four_robots_merge_into_one_frame() {
     println!("campus: merged {} of 4, errors {errors:?}, worst {t:.4} m, {r:.4} deg", report.merged());
     assert_eq!(report.merged(), 4, "{}", describe(&report));
     assert!(t < 0.05 && r < 0.5, "{t} m, {r} deg");
+    assert_unambiguous(&report);
+    // Why the outdoor threshold is below the pairwise default: rolling ground and sparse maps leave
+    // true campus pairs scoring under 0.12.
+    let scores: Vec<f64> = edges(&report).iter().map(|e| e.confidence.score).collect();
+    let weakest = scores.iter().copied().fold(f64::INFINITY, f64::min);
+    assert!(scores.iter().all(|&s| s < 0.25), "{scores:?}");
+    assert!((OUTDOOR_MIN_CONFIDENCE..INDOOR_MIN_CONFIDENCE).contains(&weakest), "{scores:?}");
 }
 
 /// A synthetic yard: ground and boxes of random sizes, `per_m2` points per square metre.
@@ -269,4 +301,7 @@ fn the_coarse_preset_keeps_the_indoor_verdicts() {
     let aisles = sim_maps("aisles", 10, 0.1);
     let report = merge(&aisles.maps, &config).unwrap();
     assert_eq!(report.merged(), 1, "only the reference: {}", describe(&report));
+    // At 0.4 m the racks blur: the alternative hall holds a little over half the upright support.
+    let support = ambiguous_support(&report);
+    assert!((0.5..0.6).contains(&support), "support {support:.2}");
 }

@@ -172,6 +172,8 @@ fn unrelated_maps_get_a_low_confidence() {
     let (good, bad) = (true_pair.best().unwrap(), other.best().expect("RANSAC always keeps a best guess here"));
     assert!(other.aligned().is_none(), "unrelated maps must not be accepted");
     assert!(bad.confidence.score < 0.5 * good.confidence.score);
+    // The outdoor merge threshold sits above what a similar-looking unrelated street scores.
+    assert!(bad.confidence.score < station::merge::OUTDOOR_MIN_CONFIDENCE, "{}", bad.confidence.score);
     assert!(bad.inlier_ratio < good.inlier_ratio);
 }
 
