@@ -13,6 +13,7 @@ pub mod point_cloud;
 pub mod preset;
 pub mod registration;
 pub mod se3;
+pub mod stopwatch;
 pub mod trajectory;
 pub mod voxel;
 

@@ -51,3 +51,50 @@ fn proc_status_mb(field: &str) -> Option<f64> {
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb / 1024.0)
 }
+
+/// Resident memory along a run, MB (`None` where the system does not say).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct MemoryTrace {
+    /// After the first scan.
+    pub after_first_scan: Option<f64>,
+    /// After half the scans, when their number is known in advance.
+    pub half_way: Option<f64>,
+    /// After the last scan.
+    pub end: Option<f64>,
+}
+
+/// Samples the resident memory of a long run and trims the heap every [`RELEASE_EVERY`] scans.
+#[derive(Clone, Debug)]
+pub struct MemoryWatch {
+    expected: Option<usize>,
+    trace: MemoryTrace,
+}
+
+impl MemoryWatch {
+    /// A watch over a run of `expected` scans, when known.
+    pub fn new(expected: Option<usize>) -> Self {
+        MemoryWatch { expected, trace: MemoryTrace::default() }
+    }
+
+    /// Called after each scan with the number done.
+    pub fn observe(&mut self, done: usize) {
+        if done == 1 {
+            self.trace.after_first_scan = rss_mb();
+        }
+        if Some(done) == self.expected.map(|n| n / 2) {
+            self.trace.half_way = rss_mb();
+        }
+        if Some(done) == self.expected {
+            self.trace.end = rss_mb();
+        }
+        // The resident size is read before the trim: between two trims it is at its highest.
+        if done % RELEASE_EVERY == 0 {
+            release_free_memory();
+        }
+    }
+
+    /// The trace; the end is read now if the run ended before the expected count.
+    pub fn finish(self) -> MemoryTrace {
+        MemoryTrace { end: self.trace.end.or_else(rss_mb), ..self.trace }
+    }
+}

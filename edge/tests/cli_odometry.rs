@@ -76,3 +76,29 @@ fn eval_by_hand() {
     assert!(!run.status.success());
     assert!(String::from_utf8_lossy(&run.stderr).contains("ground truth has 3 poses, estimate 1"));
 }
+
+#[test]
+fn odometry_errors_name_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = kitti00();
+    let data = data.to_str().unwrap();
+    let stderr = |args: &[&str]| {
+        let run = emr_edge(args);
+        assert!(!run.status.success());
+        String::from_utf8_lossy(&run.stderr).into_owned()
+    };
+    let missing = dir.path().join("missing.toml");
+    let out = dir.path().join("out");
+    let (missing, out) = (missing.to_str().unwrap(), out.to_str().unwrap());
+    let text = stderr(&["odometry", data, "--out", out, "--config", missing]);
+    assert!(text.contains(&format!("cannot read {missing}")), "{text}");
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[solver]\nno_such_key = 1\n").unwrap();
+    let text = stderr(&["odometry", data, "--out", out, "--config", bad.to_str().unwrap()]);
+    assert!(text.contains(&format!("{}: invalid configuration", bad.display())), "{text}");
+    // An output directory that is a file.
+    let file = dir.path().join("file");
+    std::fs::write(&file, "").unwrap();
+    let text = stderr(&["odometry", data, "--out", file.to_str().unwrap(), "--max-frames", "1"]);
+    assert!(text.contains(&format!("cannot create {}", file.display())), "{text}");
+}

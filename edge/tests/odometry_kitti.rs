@@ -3,9 +3,12 @@
 
 use std::path::PathBuf;
 
+use cloud::Preset;
 use cloud::trajectory::{Trajectory, ate};
+use edge::odometry::pipeline::{self, OdometryPipeline, Tuning};
 use edge::odometry::{Odometry, OdometryConfig};
 use edge::recording::{RecordingOptions, RingModel, Spin, TimeModel, open};
+use edge::source::SourceSpec;
 
 fn data() -> PathBuf {
     PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/kitti00"))
@@ -38,4 +41,28 @@ fn kitti00_first_16_frames_within_5_cm_ate() {
     );
     assert!(raw.rmse < 0.05, "ATE {:.4} m", raw.rmse);
     assert!(aligned.rmse < 0.05, "ATE {:.4} m", aligned.rmse);
+}
+
+#[test]
+fn the_pipeline_writes_the_poses_the_odometry_estimates() {
+    // The library pipeline (what `emr-edge odometry` runs) against the odometry called by hand:
+    // the same poses, to the last digit of the KITTI file.
+    let config = Tuning { preset: Preset::Outdoor, file: None, no_deskew: true }.load().unwrap();
+    let options = pipeline::recording_options(None, &config);
+    let mut odometry = Odometry::new(config.clone()).unwrap();
+    let by_hand = Trajectory {
+        poses: open(&data(), &options).unwrap().map(|s| odometry.register(&s.unwrap().cloud).unwrap().pose).collect(),
+        stamps: None,
+    };
+    let out = tempfile::tempdir().unwrap();
+    let input = SourceSpec::Recording(data());
+    let report = OdometryPipeline::new(&input, None, None, config, out.path()).unwrap().run(|_| {}).unwrap();
+    assert_eq!(report.summary.frames, by_hand.poses.len());
+    // A directory of scans carries no ground truth: no accuracy figures, no truth file.
+    assert!(report.ate_rmse_m.is_none() && !out.path().join("poses_gt_kitti.txt").exists());
+    let written = std::fs::read_to_string(out.path().join("poses_kitti.txt")).unwrap();
+    assert_eq!(written, by_hand.to_kitti());
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("stats.json")).unwrap()).unwrap();
+    assert_eq!(stats["frames"], by_hand.poses.len());
 }

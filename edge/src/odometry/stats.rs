@@ -112,6 +112,16 @@ impl RunStats {
         }
     }
 
+    /// Wall time per scan so far, milliseconds, in scan order.
+    pub fn ms(&self) -> &[f64] {
+        &self.ms
+    }
+
+    /// Time per scan of each stage (features, registration, map), milliseconds, in scan order.
+    pub fn stages(&self) -> &[Vec<f64>; 3] {
+        &self.stages
+    }
+
     /// The summary so far.
     pub fn summary(&self) -> RunSummary {
         RunSummary {

@@ -28,9 +28,10 @@ pub mod polish;
 pub mod preprocess;
 pub mod ransac;
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use cloud::PointCloud;
+use cloud::stopwatch::Stopwatch;
 use nalgebra::{Isometry3, Point3};
 
 pub use confidence::{Confidence, ConfidenceConfig};
@@ -216,12 +217,11 @@ impl MapFeatures {
     pub fn compute(cloud: &PointCloud, config: &PairwiseConfig) -> Result<Self, FeatureError> {
         config.validate()?;
         let mut timing = FeatureTiming::default();
-        let clock = Instant::now();
+        let mut watch = Stopwatch::start();
         let filtered = preprocess::preprocess(cloud, &config.preprocess)?;
-        timing.preprocess = clock.elapsed();
-        let clock = Instant::now();
+        timing.preprocess = watch.lap();
         let surfels = normals::estimate_normals(&filtered, &config.normals, config.reach())?;
-        timing.normals = clock.elapsed();
+        timing.normals = watch.lap();
         let with_normals = surfels.with_normals();
         if with_normals < config.preprocess.min_points.max(3) {
             return Err(FeatureError::TooFewPoints {
@@ -230,14 +230,12 @@ impl MapFeatures {
                 needed: config.preprocess.min_points.max(3),
             });
         }
-        let clock = Instant::now();
         let candidates = harris::detect_keypoints(&surfels, &config.keypoints);
-        timing.keypoints = clock.elapsed();
-        let clock = Instant::now();
+        timing.keypoints = watch.lap();
         let described = fpfh::fpfh_at(&surfels, &candidates, &config.descriptors);
         let (keypoints, descriptors): (Vec<usize>, Vec<Fpfh>) =
             candidates.iter().zip(described).filter_map(|(&i, d)| Some((i, d?))).unzip();
-        timing.descriptors = clock.elapsed();
+        timing.descriptors = watch.lap();
         if keypoints.len() < 3 {
             return Err(FeatureError::TooFewPoints { stage: "descriptors", points: keypoints.len(), needed: 3 });
         }
@@ -359,12 +357,12 @@ pub fn register(
     config: &PairwiseConfig,
 ) -> Result<PairwiseOutcome, PairwiseError> {
     config.validate().map_err(PairwiseError::Config)?;
-    let clock = Instant::now();
+    let watch = Stopwatch::start();
     let (s, t) = rayon::join(|| MapFeatures::compute(source, config), || MapFeatures::compute(target, config));
     let (s, t) = (s.map_err(PairwiseError::Source)?, t.map_err(PairwiseError::Target)?);
     let mut outcome = align(&s, &t, config);
     if let Some(r) = outcome.best_mut() {
-        r.timing.total = clock.elapsed();
+        r.timing.total = watch.elapsed();
     }
     Ok(outcome)
 }
@@ -372,24 +370,21 @@ pub fn register(
 /// Steps 5-6 and the scores for two maps' features (`total` timing: features plus this call).
 pub fn align(source: &MapFeatures, target: &MapFeatures, config: &PairwiseConfig) -> PairwiseOutcome {
     let mut timing = StepTiming { source: source.timing, target: target.timing, ..StepTiming::default() };
-    let clock = Instant::now();
+    let mut watch = Stopwatch::start();
     let matches = matching::reciprocal_matches(&source.descriptors, &target.descriptors, config.matching.k);
-    timing.matching = clock.elapsed();
-    let clock = Instant::now();
+    timing.matching = watch.lap();
     let src: Vec<Point3<f64>> = matches.iter().map(|c| source.keypoint(c.source).cast()).collect();
     let tgt: Vec<Point3<f64>> = matches.iter().map(|c| target.keypoint(c.target).cast()).collect();
     let model = ransac::ransac(&src, &tgt, &config.ransac);
-    timing.ransac = clock.elapsed();
+    timing.ransac = watch.lap();
     let Some(model) = model else {
         return PairwiseOutcome::NotAligned {
             reason: Rejection::NoModel { correspondences: matches.len() },
             best: None,
         };
     };
-    let clock = Instant::now();
     let transform = polish::polish(&source.surfels, &target.surfels, &model.transform, &config.polish);
-    timing.polish = clock.elapsed();
-    let clock = Instant::now();
+    timing.polish = watch.lap();
     let inlier_ratio = model.inliers.len() as f64 / matches.len() as f64;
     let scores = confidence::confidence(
         &source.surfels.points,
@@ -398,7 +393,7 @@ pub fn align(source: &MapFeatures, target: &MapFeatures, config: &PairwiseConfig
         inlier_ratio,
         &config.confidence,
     );
-    timing.confidence = clock.elapsed();
+    timing.confidence = watch.lap();
     timing.total = source.timing.total()
         + target.timing.total()
         + timing.matching

@@ -1,12 +1,14 @@
-//! Benchmarks behind `emr-edge bench`.
+//! `emr-edge bench codec`: the point-cloud codec's sizes, times and errors on real scans.
 
 use std::fmt;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use cloud::PointCloud;
+use cloud::stopwatch::Stopwatch;
 use proto::codec::{self, CodecConfig};
+
+use super::median;
 
 /// Codec figures over a directory of scans: one row per scan and mode, then totals, also for
 /// keyframes made from the scans.
@@ -147,12 +149,11 @@ fn time_round_trip(cloud: &PointCloud, config: &CodecConfig, repeat: usize) -> R
     let (mut encode_ms, mut decode_ms) = (Vec::with_capacity(repeat), Vec::with_capacity(repeat));
     let mut last = None;
     for _ in 0..repeat {
-        let start = Instant::now();
+        let mut watch = Stopwatch::start();
         let bytes = codec::encode(cloud, config)?;
-        encode_ms.push(start.elapsed().as_secs_f64() * 1e3);
-        let start = Instant::now();
+        encode_ms.push(watch.lap_ms());
         let decoded = codec::decode(&bytes)?;
-        decode_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        decode_ms.push(watch.lap_ms());
         last = Some((bytes.len(), decoded));
     }
     let (size, decoded) = last.context("no repetition ran")?;
@@ -160,11 +161,6 @@ fn time_round_trip(cloud: &PointCloud, config: &CodecConfig, repeat: usize) -> R
         bail!("decoded {} points out of {}", decoded.len(), cloud.len());
     }
     Ok((size, (median(&mut encode_ms), median(&mut decode_ms)), decoded))
-}
-
-fn median(values: &mut [f64]) -> f64 {
-    values.sort_by(f64::total_cmp);
-    values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 /// Largest per-coordinate difference, metres.
@@ -291,107 +287,4 @@ fn totals(modes: &[ModeFigures]) -> Option<ModeFigures> {
         max_error_mm: modes.iter().map(|m| m.max_error_mm).fold(0.0, f64::max),
         max_intensity_error: modes.iter().map(|m| m.max_intensity_error).fold(0.0, f64::max),
     })
-}
-
-/// Figures of `emr-edge bench odometry`.
-pub struct OdometryReport {
-    /// Scans per run.
-    pub scans: usize,
-    /// Points per scan, on average.
-    pub points: usize,
-    /// Per run: median and p95 milliseconds per scan.
-    pub runs: Vec<(f64, f64)>,
-    /// Per run: median CPU milliseconds per scan of the thread that ran the odometry (what other
-    /// processes on the machine take from it does not count).
-    pub cpu: Vec<f64>,
-    /// Per run: median milliseconds of the stages (features, registration, map).
-    pub stages: Vec<[f64; 3]>,
-    /// ATE RMSE, aligned and unaligned (m), when the source has ground truth.
-    pub ate: Option<(f64, f64)>,
-}
-
-impl fmt::Display for OdometryReport {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(f, "odometry on {} scans of {} points, one thread", self.scans, self.points)?;
-        let runs = self.runs.iter().zip(&self.cpu).zip(&self.stages).enumerate();
-        for (i, (((median, p95), cpu), [features, registration, map])) in runs {
-            writeln!(
-                f,
-                "run {}: median {median:.2} ms per scan (CPU {cpu:.2} ms), p95 {p95:.2} ms (features \
-                 {features:.2}, registration {registration:.2}, map {map:.2})",
-                i + 1
-            )?;
-        }
-        let wall = median(&mut self.runs.iter().map(|r| r.0).collect::<Vec<_>>());
-        let cpu = median(&mut self.cpu.clone());
-        writeln!(f, "median of the runs: {wall:.2} ms per scan (CPU {cpu:.2} ms)")?;
-        if let Some((aligned, unaligned)) = self.ate {
-            writeln!(f, "ATE RMSE {:.2} cm aligned, {:.2} cm unaligned", aligned * 100.0, unaligned * 100.0)?;
-        }
-        Ok(())
-    }
-}
-
-/// Registers `scans` `runs` times, each pass with a fresh odometry on a one-thread pool (the
-/// calling thread stays out of it, so no pass waits on a hand-over between threads).
-pub fn odometry(
-    scans: &[edge::source::SourceScan],
-    config: &edge::odometry::OdometryConfig,
-    runs: usize,
-) -> Result<OdometryReport> {
-    if scans.is_empty() {
-        bail!("the source gave no scans");
-    }
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
-    let mut report = OdometryReport {
-        scans: scans.len(),
-        points: scans.iter().map(|s| s.cloud.len()).sum::<usize>() / scans.len(),
-        runs: Vec::new(),
-        cpu: Vec::new(),
-        stages: Vec::new(),
-        ate: None,
-    };
-    for _ in 0..runs.max(1) {
-        let (mut ms, mut cpu, mut stages, poses) = pool.install(|| -> Result<_> {
-            let mut odometry = edge::odometry::Odometry::new(config.clone())?;
-            let mut ms = Vec::with_capacity(scans.len());
-            let mut cpu = Vec::with_capacity(scans.len());
-            let mut stages = [(); 3].map(|_| Vec::with_capacity(scans.len()));
-            let mut poses = Vec::with_capacity(scans.len());
-            for scan in scans {
-                let (start, start_cpu) = (Instant::now(), thread_cpu_ms());
-                let frame = odometry.register(&scan.cloud).with_context(|| format!("scan {}", scan.index))?;
-                ms.push(start.elapsed().as_secs_f64() * 1e3);
-                cpu.push(thread_cpu_ms() - start_cpu);
-                let t = frame.timings;
-                for (stage, v) in stages.iter_mut().zip([t.features, t.registration, t.map]) {
-                    stage.push(v);
-                }
-                poses.push(frame.pose);
-            }
-            Ok((ms, cpu, stages, poses))
-        })?;
-        // `median` sorts: the 95th percentile is then an index away.
-        let wall = median(&mut ms);
-        report.runs.push((wall, ms[(ms.len() * 95 / 100).min(ms.len() - 1)]));
-        report.cpu.push(median(&mut cpu));
-        report.stages.push(stages.each_mut().map(|v| median(v)));
-        let truth: Vec<_> = scans.iter().filter_map(|s| s.ground_truth).collect();
-        if truth.len() == poses.len() {
-            let first = truth[0].inverse();
-            let truth: Vec<_> = truth.iter().map(|p| first * p).collect();
-            let aligned = cloud::trajectory::ate(&truth, &poses, true)?.rmse;
-            report.ate = Some((aligned, cloud::trajectory::ate(&truth, &poses, false)?.rmse));
-        }
-    }
-    Ok(report)
-}
-
-/// CPU time the calling thread has used, milliseconds.
-fn thread_cpu_ms() -> f64 {
-    let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: `t` is a valid timespec for the call to write; the clock id is a constant the
-    // kernel always knows.
-    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
-    t.tv_sec as f64 * 1e3 + t.tv_nsec as f64 * 1e-6
 }

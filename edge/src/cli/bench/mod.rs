@@ -1,0 +1,88 @@
+//! `emr-edge bench`: speed and size figures on real data.
+
+mod codec;
+mod odometry;
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Subcommand;
+use edge::odometry::pipeline::{self, Tuning};
+
+use super::sim::{SensorArg, scenario_values};
+use super::{SourceArgs, TuningArgs};
+
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Point-cloud codec: compression ratio against raw f32 xyz, encode and decode time per scan
+    /// (one core), maximum coordinate error, on every KITTI .bin scan of a directory.
+    Codec {
+        /// Directory of KITTI .bin scans (searched recursively one level: DIR or DIR/velodyne).
+        #[arg(default_value = "../shared/data/kitti00")]
+        data: PathBuf,
+        /// Quantisation step in metres; every coordinate decodes within step/2.
+        #[arg(long, default_value_t = 0.001)]
+        step: f64,
+        /// Timed repetitions per scan (the median is reported).
+        #[arg(long, default_value_t = 20)]
+        repeat: usize,
+    },
+    /// LiDAR simulator: sweeps and rays per second on one core and on all cores.
+    Sim {
+        /// LiDAR model [default: both].
+        #[arg(long, value_enum)]
+        sensor: Option<SensorArg>,
+        /// Scenario whose robot 0 is simulated.
+        #[arg(long, default_value = "warehouse-small", value_parser = scenario_values())]
+        scenario: String,
+        /// Sweeps timed per figure, spread over the sequence.
+        #[arg(long, default_value_t = 50)]
+        frames: usize,
+    },
+    /// Odometry: the scans are read into memory first, then registered `--runs` times on a
+    /// one-thread pool; median and p95 milliseconds per scan of each run, and the ATE when the
+    /// source has ground truth.
+    Odometry {
+        #[command(flatten)]
+        source: SourceArgs,
+        #[command(flatten)]
+        tuning: TuningArgs,
+        /// Scans read from the source.
+        #[arg(long, default_value_t = 600)]
+        frames: usize,
+        /// Timed passes over the scans (each with a fresh odometry).
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+    },
+    /// Fine registration (GICP, VGICP): median time per registration on one thread and on all, and
+    /// the error against the reference pose, on DIR/{source,target}.ply and DIR/T_target_source.txt.
+    Gicp {
+        /// Directory of the cloud pair.
+        #[arg(long, default_value = "../shared/data/gicp_pair")]
+        data: PathBuf,
+        /// Timed runs per figure (the median is reported).
+        #[arg(long, default_value_t = 20)]
+        runs: usize,
+    },
+}
+
+/// `emr-edge bench WHAT`.
+pub fn bench(what: BenchCommand) -> Result<()> {
+    match what {
+        BenchCommand::Codec { data, step, repeat } => println!("{}", codec::codec(&data, step, repeat)?),
+        BenchCommand::Sim { sensor, scenario, frames } => super::sim::bench(&scenario, sensor, frames)?,
+        BenchCommand::Odometry { source, tuning, frames, runs } => {
+            let config = Tuning::from(&tuning).load()?;
+            let scans = pipeline::read_all(pipeline::open(&source.input, source.topic, Some(frames), &config)?)?;
+            println!("{}", odometry::odometry(&scans, &config, runs)?);
+        }
+        BenchCommand::Gicp { data, runs } => println!("{}", cloud::registration::bench::gicp(&data, runs)?),
+    }
+    Ok(())
+}
+
+/// The middle value (the upper one of an even count); sorts `values`.
+fn median(values: &mut [f64]) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
+}

@@ -1,0 +1,60 @@
+//! The commands of `emr-edge`, one module each, and the argument groups they share.
+
+pub mod bench;
+pub mod convert;
+pub mod eval;
+pub mod odometry;
+pub mod run;
+pub mod sim;
+
+use std::path::PathBuf;
+
+use cloud::Preset;
+use edge::odometry::pipeline::Tuning;
+use edge::source::SourceSpec;
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// How the odometry is configured (shared by the commands that run it).
+#[derive(clap::Args, Debug)]
+pub struct TuningArgs {
+    /// Odometry configuration (TOML; `emr-edge odometry --print-config` shows every key and its
+    /// default). Keys left out keep the preset's values.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Preset the configuration starts from: indoor (warehouses, ranges under ~40 m) or outdoor.
+    #[arg(long, default_value_t = Preset::Indoor)]
+    preset: Preset,
+    /// Turn motion compensation off: for recordings published already compensated (KITTI's).
+    #[arg(long)]
+    no_deskew: bool,
+}
+
+impl From<&TuningArgs> for Tuning {
+    fn from(args: &TuningArgs) -> Self {
+        Tuning { preset: args.preset, file: args.config.clone(), no_deskew: args.no_deskew }
+    }
+}
+
+/// Where scans come from (shared by the commands that read a source).
+#[derive(clap::Args, Debug)]
+pub struct SourceArgs {
+    /// The source: a directory of scans, a .bag or .mcap file, or sim:SCENARIO:ROBOT.
+    input: SourceSpec,
+    /// Topic of sensor_msgs/PointCloud2 in a bag or MCAP file [default: the only one].
+    #[arg(long)]
+    topic: Option<String>,
+}
+
+/// A progress bar on stderr; indicatif draws nothing when stderr is not a terminal.
+fn progress_bar(len: Option<usize>, unit: &str) -> ProgressBar {
+    let bar = len.map_or_else(ProgressBar::new_spinner, |n| ProgressBar::new(n as u64));
+    let template = if len.is_some() {
+        format!("{{bar:40}} {{pos}}/{{len}} {unit} [{{elapsed}} < {{eta}}, {{per_sec}}]")
+    } else {
+        format!("{{spinner}} {{pos}} {unit} [{{elapsed}}, {{per_sec}}]")
+    };
+    if let Ok(style) = ProgressStyle::with_template(&template) {
+        bar.set_style(style);
+    }
+    bar
+}

@@ -1,0 +1,41 @@
+//! `emr-edge odometry`: the library's odometry pipeline with a progress bar.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use edge::odometry::pipeline::{OdometryPipeline, Tuning};
+
+use super::{SourceArgs, TuningArgs, progress_bar};
+
+/// Arguments of `emr-edge odometry`.
+#[derive(clap::Args, Debug)]
+pub struct OdometryArgs {
+    #[command(flatten)]
+    source: SourceArgs,
+    /// Output directory (created if missing).
+    #[arg(long)]
+    out: PathBuf,
+    #[command(flatten)]
+    tuning: TuningArgs,
+    /// Stop after this many scans.
+    #[arg(long)]
+    max_frames: Option<usize>,
+    /// Print the configuration that would be used (TOML) and exit.
+    #[arg(long)]
+    print_config: bool,
+}
+
+/// `emr-edge odometry`.
+pub fn odometry(args: OdometryArgs) -> Result<()> {
+    let config = Tuning::from(&args.tuning).load()?;
+    if args.print_config {
+        print!("{}", toml::to_string(&config)?);
+        return Ok(());
+    }
+    let pipeline = OdometryPipeline::new(&args.source.input, args.source.topic, args.max_frames, config, &args.out)?;
+    let bar = progress_bar(pipeline.len(), "scans");
+    let report = pipeline.run(|_| bar.inc(1));
+    bar.finish_and_clear();
+    println!("{}", report?.to_json()?);
+    Ok(())
+}

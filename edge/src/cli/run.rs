@@ -1,0 +1,126 @@
+//! `emr-edge run`: the robot's network service.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{Context, Result, bail};
+use bus::NetworkArgs;
+use clap::ValueEnum;
+use edge::node::{self, NodeConfig, NodeSummary, Rate, SourceEnd};
+use edge::odometry::pipeline::{Tuning, recording_options};
+use edge::source::SourceSpec;
+use proto::Fleet;
+
+use super::TuningArgs;
+
+/// Arguments of `emr-edge run`.
+#[derive(clap::Args, Debug)]
+pub struct RunArgs {
+    /// Fleet name: ASCII letters, digits, '-' and '_'.
+    #[arg(long, value_parser = |s: &str| Fleet::new(s))]
+    fleet: Fleet,
+    /// Robot id within the fleet [default: ROBOT of a sim:SCENARIO:ROBOT source, which it must match].
+    #[arg(long)]
+    robot: Option<u32>,
+    /// The source: a directory of scans, a .bag or .mcap file, or sim:SCENARIO:ROBOT.
+    #[arg(long, value_name = "INPUT")]
+    source: SourceSpec,
+    /// Topic of sensor_msgs/PointCloud2 in a bag or MCAP file [default: the only one].
+    #[arg(long)]
+    topic: Option<String>,
+    /// Pace: realtime plays scans at their stamps, max as fast as the odometry goes.
+    #[arg(long, value_enum, default_value_t = RateArg::Realtime)]
+    rate: RateArg,
+    /// Stop reading after this many scans.
+    #[arg(long)]
+    max_frames: Option<usize>,
+    #[command(flatten)]
+    tuning: TuningArgs,
+    /// Exit when the source ends instead of answering backfill requests until a signal.
+    #[arg(long)]
+    exit_when_done: bool,
+    /// When the source ends, write {"robot", "frames", "keyframes", "published_bytes"} here (JSON):
+    /// how scripts and the system tests learn that a robot is done while it keeps serving.
+    #[arg(long, value_name = "FILE")]
+    summary: Option<PathBuf>,
+    #[command(flatten)]
+    network: NetworkArgs,
+}
+
+/// Paces of `emr-edge run`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum RateArg {
+    /// Scans at their stamps, as a live sensor delivers them.
+    Realtime,
+    /// As fast as the odometry goes.
+    Max,
+}
+
+impl From<RateArg> for Rate {
+    fn from(r: RateArg) -> Self {
+        match r {
+            RateArg::Realtime => Rate::Realtime,
+            RateArg::Max => Rate::Max,
+        }
+    }
+}
+
+/// `emr-edge run`: the node on its own runtime until the source ends or a signal comes.
+pub fn run(args: RunArgs) -> Result<()> {
+    let robot = robot_id(args.robot, &args.source)?;
+    let odometry = Tuning::from(&args.tuning).load()?;
+    let config = NodeConfig {
+        max_frames: args.max_frames,
+        rate: args.rate.into(),
+        recording: recording_options(args.topic.clone(), &odometry),
+        odometry,
+        linger: !args.exit_when_done,
+        on_source_end: args.summary.clone().map(|path| summary_writer(path, robot)),
+        ..NodeConfig::new(args.fleet.clone(), robot, args.source.clone())
+    };
+    let network = args.network.joining(bus::DEFAULT_PORT);
+    let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build().context("cannot start tokio")?;
+    let summary = runtime.block_on(async {
+        // Listen for the signals before anything slow, so that an early Ctrl-C still stops cleanly.
+        let shutdown = bus::shutdown_signal().context("cannot handle SIGINT/SIGTERM")?;
+        let session = network.open().await.with_context(|| format!("cannot join {}", bus::describe(&network)))?;
+        let summary = node::run(&session, config, shutdown).await;
+        if let Err(e) = session.close().await {
+            tracing::warn!("cannot close the zenoh session: {e}");
+        }
+        summary.with_context(|| format!("robot {robot} of fleet {}", args.fleet))
+    })?;
+    tracing::info!(
+        "robot {robot}: {} scans, {} keyframes, {:.1} MB published",
+        summary.frames,
+        summary.keyframes,
+        summary.published_bytes as f64 / 1e6
+    );
+    Ok(())
+}
+
+/// Writes the node's summary to `path` atomically (a reader never sees half a file).
+fn summary_writer(path: PathBuf, robot: u32) -> SourceEnd {
+    SourceEnd(Arc::new(move |s: &NodeSummary| {
+        let json = serde_json::json!({
+            "robot": robot, "frames": s.frames, "keyframes": s.keyframes, "published_bytes": s.published_bytes,
+        });
+        let partial = path.with_extension("partial");
+        let written = std::fs::write(&partial, json.to_string()).and_then(|()| std::fs::rename(&partial, &path));
+        if let Err(e) = written {
+            tracing::error!("cannot write the summary {}: {e}", path.display());
+        }
+    }))
+}
+
+/// The robot id: as given, or the simulated robot's, which a given id must match.
+fn robot_id(given: Option<u32>, source: &SourceSpec) -> Result<u32> {
+    match (given, source) {
+        (Some(id), SourceSpec::Sim { robot, .. }) if id != *robot => {
+            bail!("--robot {id} does not match the simulated robot of --source (robot {robot})")
+        }
+        (Some(id), _) => Ok(id),
+        (None, SourceSpec::Sim { robot, .. }) => Ok(*robot),
+        (None, SourceSpec::Recording(path)) => bail!("--robot is required with a recording ({})", path.display()),
+    }
+}

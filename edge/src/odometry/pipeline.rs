@@ -1,0 +1,352 @@
+//! The odometry over a whole source, as `emr-edge odometry`, `emr-edge bench odometry` and the
+//! tests run it: the configuration from a preset, a file and flags ([`Tuning`]); the scans
+//! registered one by one ([`register`]); the trajectory evaluated against ground truth when the
+//! source has it ([`evaluate`]); poses and figures written ([`OdometryPipeline::run`]). The one part
+//! of the odometry that touches files.
+//!
+//! One error policy for every caller: a scan that cannot be decoded is skipped with a warning;
+//! damage to a recording's container stops the reading and is an error, after the scans before it
+//! were registered and, by [`OdometryPipeline::run`], written; a file that cannot be read or
+//! written is an error naming it.
+
+use std::borrow::Borrow;
+use std::path::{Path, PathBuf};
+
+use cloud::Preset;
+use cloud::stopwatch::Stopwatch;
+use cloud::trajectory::{self, Trajectory, TrajectoryError};
+use nalgebra::Isometry3;
+use serde::Serialize;
+
+use super::config::OverlayError;
+use super::stats::{RunStats, RunSummary};
+use super::{Odometry, OdometryConfig, OdometryError};
+use crate::memory::{MemoryTrace, MemoryWatch, peak_rss_mb};
+use crate::recording::{RecordingOptions, RingModel, Spin, TimeModel};
+use sim::SimConfig;
+use crate::source::{Source, SourceError, SourceScan, SourceSpec};
+
+/// Why a run of the odometry failed.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    /// The configuration file cannot be read.
+    #[error("cannot read {}", path.display())]
+    ReadConfig { path: PathBuf, source: std::io::Error },
+    /// The configuration file is not TOML.
+    #[error("{}: invalid TOML", path.display())]
+    Toml { path: PathBuf, source: toml::de::Error },
+    /// The configuration file's keys or values do not fit.
+    #[error("{}: invalid configuration", path.display())]
+    Config { path: PathBuf, source: toml::de::Error },
+    /// The configuration is unusable, or a scan lacks a channel the odometry needs.
+    #[error(transparent)]
+    Odometry(#[from] OdometryError),
+    /// The source cannot be opened, or its container is damaged.
+    #[error(transparent)]
+    Source(#[from] SourceError),
+    /// A scan the odometry could not register.
+    #[error("scan {scan}")]
+    Register { scan: usize, source: OdometryError },
+    /// The output directory cannot be created.
+    #[error("cannot create {}", path.display())]
+    CreateDir { path: PathBuf, source: std::io::Error },
+    /// An output file cannot be written.
+    #[error("cannot write {}", path.display())]
+    Write { path: PathBuf, source: std::io::Error },
+    /// The trajectory cannot be compared with the ground truth.
+    #[error(transparent)]
+    Evaluate(#[from] TrajectoryError),
+    /// The report cannot be serialised.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+}
+
+/// Where the odometry configuration comes from, applied in this order.
+#[derive(Clone, Debug)]
+pub struct Tuning {
+    /// The preset the configuration starts from. Default indoor.
+    pub preset: Preset,
+    /// A TOML file whose keys replace the preset's. Default none.
+    pub file: Option<PathBuf>,
+    /// Motion compensation off, for recordings published already compensated. Default false.
+    pub no_deskew: bool,
+}
+
+impl Default for Tuning {
+    fn default() -> Self {
+        Tuning { preset: Preset::Indoor, file: None, no_deskew: false }
+    }
+}
+
+impl Tuning {
+    /// The configuration: the preset, then the file's keys, then the flags.
+    pub fn load(&self) -> Result<OdometryConfig, PipelineError> {
+        let mut config = OdometryConfig::preset(self.preset);
+        if let Some(path) = &self.file {
+            let text = std::fs::read_to_string(path)
+                .map_err(|source| PipelineError::ReadConfig { path: path.clone(), source })?;
+            config = config.overlay(&text).map_err(|e| match e {
+                OverlayError::Toml(source) => PipelineError::Toml { path: path.clone(), source },
+                OverlayError::Config(source) => PipelineError::Config { path: path.clone(), source },
+            })?;
+        }
+        if self.no_deskew {
+            config.deskew = false;
+        }
+        Ok(config)
+    }
+}
+
+/// How recordings are read for the odometry: rings and per-point times derived where missing.
+pub fn recording_options(topic: Option<String>, config: &OdometryConfig) -> RecordingOptions {
+    RecordingOptions {
+        topic,
+        rings: RingModel::Auto,
+        times: TimeModel::Azimuth { period_s: config.scan_period, spin: Spin::Detect },
+        ..RecordingOptions::default()
+    }
+}
+
+/// Opens `input` for the odometry (`topic` picks a bag's or MCAP file's point clouds), at most
+/// `max_frames` scans.
+pub fn open(
+    input: &SourceSpec,
+    topic: Option<String>,
+    max_frames: Option<usize>,
+    config: &OdometryConfig,
+) -> Result<Source, SourceError> {
+    Source::open(input, max_frames, &SimConfig::default(), &recording_options(topic, config))
+}
+
+/// The scans of a source under the error policy: undecodable scans skipped with a warning,
+/// reading stopped at damage, which [`Scans::finish`] reports.
+pub struct Scans {
+    source: Source,
+    damage: Option<SourceError>,
+}
+
+impl Scans {
+    /// The scans of `source`.
+    pub fn new(source: Source) -> Self {
+        Scans { source, damage: None }
+    }
+
+    /// The damage that stopped the reading, as an error.
+    pub fn finish(self) -> Result<(), SourceError> {
+        self.damage.map_or(Ok(()), Err)
+    }
+}
+
+impl Iterator for Scans {
+    type Item = SourceScan;
+
+    fn next(&mut self) -> Option<SourceScan> {
+        if self.damage.is_some() {
+            return None;
+        }
+        loop {
+            match self.source.next()? {
+                Ok(scan) => return Some(scan),
+                Err(e) if !e.is_fatal() => tracing::warn!("skipped: {e}"),
+                Err(e) => {
+                    self.damage = Some(e);
+                    return None;
+                }
+            }
+        }
+    }
+}
+
+/// Every scan of a source, in memory (for benchmarks, which must not time the reading).
+pub fn read_all(source: Source) -> Result<Vec<SourceScan>, SourceError> {
+    let mut scans = Scans::new(source);
+    let all: Vec<SourceScan> = scans.by_ref().collect();
+    scans.finish()?;
+    Ok(all)
+}
+
+/// One pass of the odometry over scans: what it estimated and what it measured.
+#[derive(Clone, Debug)]
+pub struct Pass {
+    /// Estimated sensor poses at the sweep ends, with the sweeps' start stamps.
+    pub estimate: Trajectory,
+    /// The source's ground-truth poses (world frame), when it knows them.
+    pub truth: Vec<Isometry3<f64>>,
+    /// Per-scan figures: wall time, stages, features, degeneracy.
+    pub stats: RunStats,
+    /// CPU time of the registering thread per scan, milliseconds (what other processes take from
+    /// the machine does not count).
+    pub cpu_ms: Vec<f64>,
+}
+
+impl Pass {
+    /// Scans registered so far.
+    pub fn len(&self) -> usize {
+        self.estimate.poses.len()
+    }
+
+    /// Whether no scan was registered.
+    pub fn is_empty(&self) -> bool {
+        self.estimate.poses.is_empty()
+    }
+}
+
+/// Registers `scans` in order with `odometry`, timing each; `observe` sees the pass after every scan.
+pub fn register<S: Borrow<SourceScan>>(
+    odometry: &mut Odometry,
+    scans: impl IntoIterator<Item = S>,
+    mut observe: impl FnMut(&Pass),
+) -> Result<Pass, PipelineError> {
+    let mut pass = Pass {
+        estimate: Trajectory { poses: vec![], stamps: Some(vec![]) },
+        truth: vec![],
+        stats: RunStats::default(),
+        cpu_ms: vec![],
+    };
+    for scan in scans {
+        let scan = scan.borrow();
+        let (watch, cpu) = (Stopwatch::start(), thread_cpu_ms());
+        let frame =
+            odometry.register(&scan.cloud).map_err(|source| PipelineError::Register { scan: scan.index, source })?;
+        pass.stats.add(&frame, watch.elapsed_ms());
+        pass.cpu_ms.push(thread_cpu_ms() - cpu);
+        pass.estimate.poses.push(frame.pose);
+        pass.estimate.stamps.get_or_insert_default().push(scan.stamp);
+        pass.truth.extend(scan.ground_truth);
+        observe(&pass);
+    }
+    Ok(pass)
+}
+
+/// The trajectory against ground truth, both starting at the identity.
+#[derive(Clone, Debug)]
+pub struct Accuracy {
+    /// The ground truth moved into the odometry frame (its first pose the identity).
+    pub truth: Trajectory,
+    /// Absolute trajectory error.
+    pub ate: AteRmse,
+    /// Length of the true path, metres.
+    pub path_length_m: f64,
+}
+
+/// ATE RMSE, metres.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct AteRmse {
+    /// Poses compared as they are.
+    pub unaligned: f64,
+    /// After the best SE(3) alignment; none when a straight path leaves the rotation about it
+    /// undetermined.
+    pub aligned: Option<f64>,
+}
+
+/// `estimate` against `truth` (world frame) when there is one true pose per estimated pose.
+pub fn evaluate(truth: &[Isometry3<f64>], estimate: &[Isometry3<f64>]) -> Result<Option<Accuracy>, TrajectoryError> {
+    if truth.len() != estimate.len() || truth.is_empty() {
+        return Ok(None);
+    }
+    let first = truth[0].inverse();
+    let truth = Trajectory { poses: truth.iter().map(|p| first * p).collect(), stamps: None };
+    let unaligned = trajectory::ate(&truth.poses, estimate, false)?.rmse;
+    let aligned = trajectory::ate(&truth.poses, estimate, true).ok().map(|a| a.rmse);
+    let path_length_m = truth.length();
+    Ok(Some(Accuracy { truth, ate: AteRmse { unaligned, aligned }, path_length_m }))
+}
+
+/// What `stats.json` holds: the run's figures, its memory and, with ground truth, its accuracy.
+#[derive(Clone, Debug, Serialize)]
+pub struct OdometryReport {
+    /// Timing, features, degeneracy.
+    #[serde(flatten)]
+    pub summary: RunSummary,
+    /// Peak resident memory of the process, MB.
+    pub peak_rss_mb: Option<f64>,
+    /// Resident memory along the run, MB: it must stay flat over long runs.
+    pub rss_mb: MemoryTrace,
+    /// ATE RMSE, when the source has ground truth.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ate_rmse_m: Option<AteRmse>,
+    /// Length of the true path, when the source has ground truth.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub path_length_m: Option<f64>,
+}
+
+impl OdometryReport {
+    /// The report as pretty JSON, keys in alphabetical order (as `stats.json` has always had them).
+    pub fn to_json(&self) -> Result<String, serde_json::Error> {
+        serde_json::to_string_pretty(&serde_json::to_value(self)?)
+    }
+}
+
+/// The odometry over one source into one output directory: OUT/poses_kitti.txt (a line per scan,
+/// sensor frame at the sweep end, first pose identity), OUT/poses_tum.txt (the same with stamps),
+/// OUT/stats.json ([`OdometryReport`]) and, with ground truth, OUT/poses_gt_kitti.txt.
+pub struct OdometryPipeline {
+    source: Source,
+    config: OdometryConfig,
+    out: PathBuf,
+}
+
+impl OdometryPipeline {
+    /// Opens the source and creates the output directory.
+    pub fn new(
+        input: &SourceSpec,
+        topic: Option<String>,
+        max_frames: Option<usize>,
+        config: OdometryConfig,
+        out: &Path,
+    ) -> Result<Self, PipelineError> {
+        let source = open(input, topic, max_frames, &config)?;
+        std::fs::create_dir_all(out).map_err(|source| PipelineError::CreateDir { path: out.to_owned(), source })?;
+        Ok(OdometryPipeline { source, config, out: out.to_owned() })
+    }
+
+    /// How many scans the source will give, when known in advance.
+    pub fn len(&self) -> Option<usize> {
+        self.source.len
+    }
+
+    /// Registers every scan (`progress` is told after each how many are done), writes the outputs
+    /// and returns the report.
+    pub fn run(self, mut progress: impl FnMut(usize)) -> Result<OdometryReport, PipelineError> {
+        let mut odometry = Odometry::new(self.config)?;
+        let mut memory = MemoryWatch::new(self.source.len);
+        let mut scans = Scans::new(self.source);
+        let pass = register(&mut odometry, scans.by_ref(), |pass| {
+            memory.observe(pass.len());
+            progress(pass.len());
+        })?;
+        let summary = pass.stats.summary();
+        let peak_rss_mb = peak_rss_mb();
+        let rss_mb = memory.finish();
+        let accuracy = evaluate(&pass.truth, &pass.estimate.poses)?;
+        let report = OdometryReport {
+            summary,
+            peak_rss_mb,
+            rss_mb,
+            ate_rmse_m: accuracy.as_ref().map(|a| a.ate),
+            path_length_m: accuracy.as_ref().map(|a| a.path_length_m),
+        };
+        if let Some(accuracy) = &accuracy {
+            write(&self.out.join("poses_gt_kitti.txt"), &accuracy.truth.to_kitti())?;
+        }
+        write(&self.out.join("poses_kitti.txt"), &pass.estimate.to_kitti())?;
+        write(&self.out.join("poses_tum.txt"), &pass.estimate.to_tum())?;
+        write(&self.out.join("stats.json"), &report.to_json()?)?;
+        scans.finish()?;
+        Ok(report)
+    }
+}
+
+/// Writes a text file, naming it in the error.
+fn write(path: &Path, text: &str) -> Result<(), PipelineError> {
+    std::fs::write(path, text).map_err(|source| PipelineError::Write { path: path.to_owned(), source })
+}
+
+/// CPU time the calling thread has used, milliseconds.
+fn thread_cpu_ms() -> f64 {
+    let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: `t` is a valid timespec for the call to write; the clock id is a constant the
+    // kernel always knows.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
+    t.tv_sec as f64 * 1e3 + t.tv_nsec as f64 * 1e-6
+}
