@@ -207,15 +207,6 @@ impl MergeConfig {
         }
     }
 
-    /// A preset by name: `indoor` or `outdoor`.
-    pub fn preset(name: &str) -> Option<Self> {
-        match name {
-            "indoor" => Some(Self::indoor()),
-            "outdoor" => Some(Self::outdoor()),
-            _ => None,
-        }
-    }
-
     /// Checks every setting.
     pub fn validate(&self) -> Result<(), MergeError> {
         self.pairwise.validate().map_err(MergeError::Config)?;
