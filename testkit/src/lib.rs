@@ -6,5 +6,5 @@ mod pose;
 mod rng;
 
 pub use data::shared_data;
-pub use pose::{assert_pose_close, pose_from_axis_angle, pose_from_yaw_deg};
+pub use pose::{check_pose_close, pose_from_axis_angle, pose_from_yaw_deg};
 pub use rng::Rng;

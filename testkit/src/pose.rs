@@ -26,18 +26,44 @@ fn pose_error(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> PoseError {
 }
 
 /// Panics unless `actual` is strictly within `max_translation_m` and `max_rotation_deg` of
-/// `expected`, naming both errors and both bounds.
+/// `expected`, naming both errors and both bounds, after an optional `format!`-style context
+/// (which method, which case) as `assert!` takes one.
+///
+/// ```
+/// let truth = testkit::pose_from_yaw_deg(30.0, [1.0, 2.0, 3.0]);
+/// testkit::assert_pose_close!(&truth, &truth, 1e-9, 1e-9);
+/// testkit::assert_pose_close!(&truth, &truth, 1e-9, 1e-9, "case {}", 1);
+/// ```
+#[macro_export]
+macro_rules! assert_pose_close {
+    ($actual:expr, $expected:expr, $max_translation_m:expr, $max_rotation_deg:expr $(,)?) => {
+        $crate::check_pose_close($actual, $expected, $max_translation_m, $max_rotation_deg, ::std::format_args!(""))
+    };
+    ($actual:expr, $expected:expr, $max_translation_m:expr, $max_rotation_deg:expr, $($context:tt)+) => {
+        $crate::check_pose_close(
+            $actual,
+            $expected,
+            $max_translation_m,
+            $max_rotation_deg,
+            ::std::format_args!("{}: ", ::std::format_args!($($context)+)),
+        )
+    };
+}
+
+/// What [`assert_pose_close!`] expands to; `context` prefixes the message.
+#[doc(hidden)]
 #[track_caller]
-pub fn assert_pose_close(
+pub fn check_pose_close(
     actual: &Isometry3<f64>,
     expected: &Isometry3<f64>,
     max_translation_m: f64,
     max_rotation_deg: f64,
+    context: std::fmt::Arguments,
 ) {
     let e = pose_error(actual, expected);
     assert!(
         e.translation_m < max_translation_m && e.rotation_deg < max_rotation_deg,
-        "pose off by {:.6} m and {:.6} deg (allowed below {max_translation_m} m and {max_rotation_deg} deg)",
+        "{context}pose off by {:.6} m and {:.6} deg (allowed below {max_translation_m} m and {max_rotation_deg} deg)",
         e.translation_m,
         e.rotation_deg
     );
@@ -64,20 +90,21 @@ mod tests {
         let estimate = truth * pose_from_axis_angle([0.3, 0.4, 0.0], [0.0, 0.0, 2f64.to_radians()]);
         let e = pose_error(&estimate, &truth);
         assert!((e.translation_m - 0.5).abs() < 1e-12 && (e.rotation_deg - 2.0).abs() < 1e-9, "{e:?}");
-        assert_pose_close(&estimate, &truth, 0.51, 2.01);
+        crate::assert_pose_close!(&estimate, &truth, 0.51, 2.01);
     }
 
     #[test]
-    #[should_panic(expected = "pose off by 0.500000 m")]
+    #[should_panic(expected = "case 7: pose off by 0.500000 m")]
     fn a_wrong_translation_fails() {
         let truth = pose_from_yaw_deg(30.0, [1.0, 2.0, 3.0]);
-        assert_pose_close(&(truth * pose_from_axis_angle([0.3, 0.4, 0.0], [0.0; 3])), &truth, 0.1, 1.0);
+        let off = truth * pose_from_axis_angle([0.3, 0.4, 0.0], [0.0; 3]);
+        crate::assert_pose_close!(&off, &truth, 0.1, 1.0, "case {}", 7);
     }
 
     #[test]
     #[should_panic(expected = "and 2.000000 deg")]
     fn a_wrong_rotation_fails() {
         let truth = pose_from_yaw_deg(30.0, [1.0, 2.0, 3.0]);
-        assert_pose_close(&(truth * pose_from_yaw_deg(2.0, [0.0; 3])), &truth, 0.1, 1.0);
+        crate::assert_pose_close!(&(truth * pose_from_yaw_deg(2.0, [0.0; 3])), &truth, 0.1, 1.0);
     }
 }
