@@ -2,7 +2,6 @@
 //! moved by a large known transform, unrelated maps, degenerate input, and the invariances of the
 //! features.
 
-
 use cloud::PointCloud;
 use cloud::se3::pose_error;
 use nalgebra::{Isometry3, Point3, Rotation3, Vector3};
