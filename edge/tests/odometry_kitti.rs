@@ -8,7 +8,7 @@ use edge::odometry::{Odometry, OdometryConfig};
 use edge::recording::{RecordingOptions, RingModel, Spin, TimeModel, open};
 
 fn data() -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/kitti00"))
+    testkit::shared_data("kitti00")
 }
 
 #[test]
