@@ -67,8 +67,7 @@ mod tests {
             .collect();
         let dst: Vec<_> = src.iter().map(|p| truth * p).collect();
         let est = umeyama(&src, &dst).unwrap();
-        let e = pose_error(&est, &truth);
-        assert!(e.translation_m < 1e-9 && e.rotation_deg < 1e-7, "{e:?}");
+        testkit::assert_pose_close!(&est, &truth, 1e-9, 1e-7);
     }
 
     #[test]

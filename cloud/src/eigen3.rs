@@ -113,13 +113,8 @@ mod tests {
 
     #[test]
     fn matches_the_iterative_solver() {
-        let mut s = 0x1234_5678_9abc_def0u64;
-        let mut rand = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut rng = testkit::Rng::new(0x1234_5678_9abc_def0);
+        let mut rand = move || rng.f64() * 2.0 - 1.0;
         for _ in 0..2000 {
             let r = Rotation3::new(Vector3::new(rand(), rand(), rand()) * 3.0);
             let d = Matrix3::from_diagonal(&Vector3::new(rand(), rand() * 10.0, rand() * 1e-3));

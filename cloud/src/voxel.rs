@@ -116,13 +116,8 @@ mod tests {
     #[test]
     fn every_output_point_is_alone_in_its_voxel_and_counts_add_up() {
         // A seeded lattice-with-jitter cloud: centroids stay inside their voxel, one per occupied voxel.
-        let mut state = 0x9e3779b97f4a7c15u64;
-        let mut rand = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rng = testkit::Rng::new(0x9e3779b97f4a7c15);
+        let mut rand = move || rng.f32();
         let pts: Vec<_> =
             (0..20_000).map(|_| Point3::new(rand() * 40.0 - 20.0, rand() * 40.0 - 20.0, rand() * 4.0)).collect();
         let c = PointCloud::from_points(pts.clone());

@@ -9,11 +9,7 @@ use cloud::formats::{
 use cloud::{Channels, PointCloud};
 use nalgebra::Point3;
 use proptest::prelude::*;
-
-/// A file of the shared real-data folder.
-fn data(relative: &str) -> PathBuf {
-    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data")).join(relative)
-}
+use testkit::shared_data as data;
 
 /// A path for a file this test writes.
 fn scratch(name: &str) -> PathBuf {

@@ -1,45 +1,19 @@
 //! GICP/VGICP against ground truth: a real LiDAR pair with a reference pose, and seeded synthetic scenes.
 
-use std::path::Path;
-
 use cloud::PointCloud;
 use cloud::formats::read_cloud;
 use cloud::registration::{
     GaussianCloud, GaussianVoxelMap, GicpFactor, Method, RegistrationConfig, RegistrationError, align, linear_system,
     register,
 };
-use cloud::se3::{from_matrix, pose_error};
+use cloud::se3::from_matrix;
 use cloud::voxel::downsample;
-use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
-
-const PAIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/gicp_pair");
-
-/// Hand-written xorshift64: reproducible without the rand crate.
-struct XorShift(u64);
-
-impl XorShift {
-    /// Uniform in [0, 1).
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Uniform in [lo, hi).
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.next()
-    }
-
-    /// Roughly Gaussian (sum of uniforms), standard deviation `sigma`.
-    fn gauss(&mut self, sigma: f64) -> f64 {
-        ((0..12).map(|_| self.next()).sum::<f64>() - 6.0) * sigma
-    }
-}
+use nalgebra::{Isometry3, Matrix4, Point3, Vector3};
+use testkit::{Rng, assert_pose_close, pose_from_axis_angle as pose};
 
 /// `n` random points on a room (floor, ceiling, four walls) with three boxes inside: planes in
 /// every direction, so all six degrees of freedom are observable.
-fn structured_scene(rng: &mut XorShift, n: usize) -> Vec<Vector3<f64>> {
+fn structured_scene(rng: &mut Rng, n: usize) -> Vec<Vector3<f64>> {
     // Axis-aligned boxes as (min, max); the first is the room, whose inside faces are sampled.
     let boxes = [
         ([-10.0, -7.0, 0.0], [12.0, 8.0, 4.0]),
@@ -49,10 +23,10 @@ fn structured_scene(rng: &mut XorShift, n: usize) -> Vec<Vector3<f64>> {
     ];
     (0..n)
         .map(|_| {
-            let (lo, hi) = boxes[(rng.next() * boxes.len() as f64) as usize];
-            let face = (rng.next() * 6.0) as usize;
+            let (lo, hi) = boxes[(rng.f64() * boxes.len() as f64) as usize];
+            let face = (rng.f64() * 6.0) as usize;
             let axis = face / 2;
-            let mut p = Vector3::new(rng.range(lo[0], hi[0]), rng.range(lo[1], hi[1]), rng.range(lo[2], hi[2]));
+            let mut p = Vector3::new(rng.uniform(lo[0], hi[0]), rng.uniform(lo[1], hi[1]), rng.uniform(lo[2], hi[2]));
             p[axis] = if face.is_multiple_of(2) { lo[axis] } else { hi[axis] };
             p
         })
@@ -60,16 +34,16 @@ fn structured_scene(rng: &mut XorShift, n: usize) -> Vec<Vector3<f64>> {
 }
 
 /// A cloud of `points` mapped by `pose`, with Gaussian noise of `sigma` metres per axis.
-fn to_cloud(points: &[Vector3<f64>], pose: &Isometry3<f64>, rng: &mut XorShift, sigma: f64) -> PointCloud {
+fn to_cloud(points: &[Vector3<f64>], pose: &Isometry3<f64>, rng: &mut Rng, sigma: f64) -> PointCloud {
     PointCloud::from_points(
         points
             .iter()
             .map(|p| {
                 let q = pose * Point3::from(*p);
                 Point3::new(
-                    (q.x + rng.gauss(sigma)) as f32,
-                    (q.y + rng.gauss(sigma)) as f32,
-                    (q.z + rng.gauss(sigma)) as f32,
+                    (q.x + rng.gaussian(sigma)) as f32,
+                    (q.y + rng.gaussian(sigma)) as f32,
+                    (q.z + rng.gaussian(sigma)) as f32,
                 )
             })
             .collect(),
@@ -79,7 +53,7 @@ fn to_cloud(points: &[Vector3<f64>], pose: &Isometry3<f64>, rng: &mut XorShift, 
 /// Two independent samplings of the scene: target in the world frame, source in a frame moved by
 /// `truth` (`T_target_source`), both with 5 mm noise.
 fn synthetic_pair(truth: &Isometry3<f64>, seed: u64) -> (PointCloud, PointCloud) {
-    let mut rng = XorShift(seed);
+    let mut rng = Rng::new(seed);
     let target = structured_scene(&mut rng, 20_000);
     let source = structured_scene(&mut rng, 20_000);
     let target = to_cloud(&target, &Isometry3::identity(), &mut rng, 0.005);
@@ -88,29 +62,15 @@ fn synthetic_pair(truth: &Isometry3<f64>, seed: u64) -> (PointCloud, PointCloud)
     (down(&source), down(&target))
 }
 
-fn pose(t: [f64; 3], axis_angle: [f64; 3]) -> Isometry3<f64> {
-    Isometry3::from_parts(Translation3::new(t[0], t[1], t[2]), UnitQuaternion::from_scaled_axis(axis_angle.into()))
-}
-
 /// The gicp_pair clouds downsampled to 0.25 m (as small_gicp's examples) and the reference pose.
 fn real_pair() -> (PointCloud, PointCloud, Isometry3<f64>) {
-    let dir = Path::new(PAIR);
+    let dir = testkit::shared_data("gicp_pair");
     let read = |name: &str| read_cloud(&dir.join(name)).unwrap().cloud;
     let down = |c: PointCloud| downsample(&c, 0.25).unwrap();
     let text = std::fs::read_to_string(dir.join("T_target_source.txt")).unwrap();
     let values: Vec<f64> = text.split_whitespace().map(|v| v.parse().unwrap()).collect();
     let reference = from_matrix(&Matrix4::from_row_slice(&values)).unwrap();
     (down(read("source.ply")), down(read("target.ply")), reference)
-}
-
-fn assert_close(result: &Isometry3<f64>, truth: &Isometry3<f64>, max_m: f64, max_deg: f64, what: &str) {
-    let e = pose_error(result, truth);
-    assert!(
-        e.translation_m <= max_m && e.rotation_deg <= max_deg,
-        "{what}: error {:.4} m {:.4} deg (allowed {max_m} m {max_deg} deg)",
-        e.translation_m,
-        e.rotation_deg
-    );
 }
 
 /// Allowed error on the real pair. The reference pose is itself only good to a few tenths of a
@@ -132,7 +92,7 @@ fn real_pair_from_identity_all_methods() {
         // Mean squared distance to the matched Gaussians: points for GICP, 1 m voxel means for VGICP.
         let max_fitness = if method == Method::Vgicp { 0.25 } else { 0.1 };
         assert!(r.fitness.is_finite() && r.fitness < max_fitness, "{method:?} fitness {}", r.fitness);
-        assert_close(&r.transform, &reference, max_m, REAL_MAX_DEG, &format!("{method:?}"));
+        assert_pose_close!(&r.transform, &reference, max_m, REAL_MAX_DEG, "{method:?}");
         // The information matrix is symmetric positive definite (all six directions observed).
         assert!((r.hessian - r.hessian.transpose()).norm() <= 1e-9 * r.hessian.norm());
         assert!(r.hessian.cholesky().is_some(), "{method:?}: hessian not positive definite");
@@ -148,7 +108,7 @@ fn real_pair_vgicp_single_level_and_wider_search() {
     for config in [single, direct7] {
         let r = align(&source, &target, &Isometry3::identity(), Method::Vgicp, &config).unwrap();
         assert!(r.converged, "{:?}: {r:?}", config.voxel_search);
-        assert_close(&r.transform, &reference, REAL_MAX_M, REAL_MAX_DEG, &format!("VGICP {:?}", config.voxel_search));
+        assert_pose_close!(&r.transform, &reference, REAL_MAX_M, REAL_MAX_DEG, "VGICP {:?}", config.voxel_search);
     }
 }
 
@@ -160,7 +120,7 @@ fn synthetic_known_transform_is_recovered() {
     for method in [Method::Gicp, Method::Vgicp, Method::PointToPlane] {
         let r = align(&source, &target, &Isometry3::identity(), method, &config).unwrap();
         assert!(r.converged, "{method:?}: {r:?}");
-        assert_close(&r.transform, &truth, 0.005, 0.05, &format!("synthetic {method:?}"));
+        assert_pose_close!(&r.transform, &truth, 0.005, 0.05, "synthetic {method:?}");
     }
 }
 
@@ -220,7 +180,7 @@ fn per_thread_reduction_equals_single_thread_sum() {
     let run = |pool: &rayon::ThreadPool| pool.install(|| register(&source, &map, &GicpFactor, &at, &config).unwrap());
     let (a, b) = (run(&one), run(&many));
     assert_eq!(a.iterations, b.iterations);
-    assert_close(&a.transform, &b.transform, 1e-9, 1e-7, "1 vs 4 threads");
+    assert_pose_close!(&a.transform, &b.transform, 1e-9, 1e-7, "1 vs 4 threads");
 }
 
 #[test]

@@ -11,7 +11,7 @@ use edge::recording::{RecordingOptions, RingModel, Spin, TimeModel, open};
 use edge::source::SourceSpec;
 
 fn data() -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/kitti00"))
+    testkit::shared_data("kitti00")
 }
 
 #[test]

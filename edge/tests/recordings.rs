@@ -16,7 +16,6 @@ use edge::recording::{
 use nalgebra::Point3;
 
 const FIXTURES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures");
-const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/kitti00/velodyne");
 const BAGS: [&str; 3] = ["kitti3.bag", "kitti3_bz2.bag", "kitti3_lz4.bag"];
 const BAG_TOPICS: [&str; 3] = ["/velodyne_points", "/points_f64", "/ouster/points"];
 
@@ -25,7 +24,7 @@ fn fixture(name: &str) -> PathBuf {
 }
 
 fn kitti_scan(index: usize) -> PointCloud {
-    read_cloud(&Path::new(KITTI).join(format!("{index:06}.bin"))).expect("KITTI scan").cloud
+    read_cloud(&testkit::shared_data(&format!("kitti00/velodyne/{index:06}.bin"))).expect("KITTI scan").cloud
 }
 
 fn with_topic(topic: &str) -> RecordingOptions {

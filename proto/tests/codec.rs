@@ -7,44 +7,23 @@ use cloud::PointCloud;
 use nalgebra::Point3;
 use proptest::prelude::*;
 use proto::codec::{self, CodecConfig, DecodeError, DecodeLimits, EncodeError};
-
-const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/kitti00/velodyne");
+use testkit::Rng;
 
 /// Offset of the point count in the header.
 const COUNT_AT: usize = 32;
 /// Header length.
 const HEADER: usize = 40;
 
-/// Tiny seeded generator, so that the synthetic clouds are the same on every run.
-struct XorShift(u64);
-
-impl XorShift {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-
-    /// Uniform in `[lo, hi)`.
-    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-}
-
 /// Every KITTI scan (sorted by name) with its reflectance as intensity.
 fn kitti_scans() -> Vec<(String, PointCloud)> {
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(KITTI)
-        .unwrap_or_else(|e| panic!("KITTI scans expected in {KITTI}: {e}"))
+    let dir = testkit::shared_data("kitti00/velodyne");
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("KITTI scans expected in {}: {e}", dir.display()))
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|e| e == "bin"))
         .collect();
     paths.sort();
-    assert!(!paths.is_empty(), "no .bin scan in {KITTI}");
+    assert!(!paths.is_empty(), "no .bin scan in {}", dir.display());
     paths.iter().map(|p| (p.file_name().unwrap().to_string_lossy().into_owned(), read_kitti(p))).collect()
 }
 
@@ -130,7 +109,7 @@ fn cloud_of(points: &[[f32; 3]]) -> PointCloud {
 
 /// `n` points uniform in a 200 m cube around the origin, with every channel.
 fn random_cloud(n: usize, seed: u64) -> PointCloud {
-    let mut rng = XorShift(seed);
+    let mut rng = Rng::new(seed);
     let mut cloud =
         cloud_of(&(0..n).map(|_| [0; 3].map(|_: i32| rng.uniform(-100.0, 100.0) as f32)).collect::<Vec<_>>());
     cloud.intensity = Some((0..n).map(|_| rng.uniform(0.0, 255.0) as f32).collect());
@@ -236,7 +215,7 @@ fn empty_single_and_identical_clouds_round_trip() {
 /// A cloud whose values sit a random fraction (below 0.4) of a step away from known multiples
 /// of the steps, so the expected quantised values are exact, with no ties to round.
 fn cloud_on_grid(n: usize, config: &CodecConfig, seed: u64) -> (PointCloud, Vec<[i64; 6]>) {
-    let mut rng = XorShift(seed);
+    let mut rng = Rng::new(seed);
     let mut near = |q: i64, step: f64| ((q as f64 + rng.uniform(-0.4, 0.4)) * step) as f32;
     let mut cloud = PointCloud::with_capacity(n, cloud::Channels { intensity: true, ring: true, time: true });
     let mut expected = Vec::with_capacity(n);
@@ -295,11 +274,8 @@ fn reordering_shrinks_a_shuffled_voxel_map() {
     let keep: Vec<usize> =
         (0..scan.len()).filter(|&i| seen.insert(scan.xyz()[i].map(|c| (c / 0.2).floor() as i32))).collect();
     let mut voxels = scan.select(&keep);
-    let mut rng = XorShift(5);
     let mut order: Vec<usize> = (0..voxels.len()).collect();
-    for i in (1..order.len()).rev() {
-        order.swap(i, rng.below(i + 1));
-    }
+    Rng::new(5).shuffle(&mut order);
     voxels = voxels.select(&order);
     let ordered = codec::encode(&voxels, &CodecConfig::default()).unwrap();
     let config = CodecConfig { reorder: true, ..CodecConfig::default() };

@@ -1,19 +1,15 @@
 //! `emr-station` end to end on real scans: `align` (global, vgicp, gicp) and `merge` against the
 //! reference transforms of ../shared/data, and `bench merge`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use cloud::se3::{PoseError, pose_error};
 use nalgebra::{Isometry3, Matrix4};
 use station::pairwise::bench::read_transform;
+use testkit::shared_data as data;
 
-const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data");
 const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
-
-fn data(path: &str) -> PathBuf {
-    Path::new(DATA).join(path)
-}
 
 /// Runs `emr-station` from the project root; panics with its stderr on failure.
 fn station(args: &[&str]) -> String {

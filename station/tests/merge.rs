@@ -10,6 +10,7 @@ use station::merge::{
     Edge, INDOOR_MIN_CONFIDENCE, MapStatus, MergeConfig, MergeError, MergeReport, Merger, OUTDOOR_MIN_CONFIDENCE,
     PairRejection, PairVerdict, Unmerged, merge,
 };
+use testkit::{Rng, assert_pose_close, pose_from_yaw_deg};
 
 /// Robot maps of a scenario and the world pose of each map's frame.
 struct SimMaps {
@@ -149,13 +150,8 @@ fn campus_four_robots_merge_into_one_frame() {
 
 /// A synthetic yard: ground and boxes of random sizes, `per_m2` points per square metre.
 fn yard(seed: u64, size: f32, per_m2: f32) -> PointCloud {
-    let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-    let mut unit = move || {
-        state ^= state >> 12;
-        state ^= state << 25;
-        state ^= state >> 27;
-        (state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32 / (1u64 << 24) as f32
-    };
+    let mut rng = Rng::xorshift64_star(Rng::spread(seed));
+    let mut unit = move || rng.f32();
     let mut points = Vec::new();
     let patch =
         |points: &mut Vec<Point3<f32>>, unit: &mut dyn FnMut() -> f32, o: [f32; 3], a: [f32; 3], b: [f32; 3]| {
@@ -183,10 +179,6 @@ fn yard(seed: u64, size: f32, per_m2: f32) -> PointCloud {
 
 fn moved(cloud: &PointCloud, pose: &Isometry3<f64>) -> PointCloud {
     cloud.transformed(&pose.cast::<f32>())
-}
-
-fn pose(yaw_deg: f64, t: [f64; 3]) -> Isometry3<f64> {
-    Isometry3::new(nalgebra::Vector3::from(t), nalgebra::Vector3::z() * yaw_deg.to_radians())
 }
 
 #[test]
@@ -219,20 +211,19 @@ fn incremental_merger_recomputes_only_the_changed_maps_pairs() {
 #[test]
 fn synthetic_yard_moved_far_is_merged_exactly() {
     let world = yard(3, 60.0, 6.0);
-    let truth = pose(70.0, [25.0, -40.0, 1.0]);
+    let truth = pose_from_yaw_deg(70.0, [25.0, -40.0, 1.0]);
     // Map 1 is the same yard seen from a frame `truth` away: map 1's points into map 0 is `truth`.
     let maps = vec![world.clone(), moved(&world, &truth.inverse())];
     let report = merge(&maps, &MergeConfig { reference: Some(0), ..MergeConfig::outdoor() }).unwrap();
     println!("{}", describe(&report));
     assert_eq!(report.reference, Some(0));
-    let e = pose_error(&report.maps[1].transform(), &truth);
-    assert!(e.translation_m < 0.05 && e.rotation_deg < 0.5, "{e:?}");
+    assert_pose_close!(&report.maps[1].transform(), &truth, 0.05, 0.5);
 }
 
 #[test]
 fn guard_rails_give_a_reason_per_map_and_never_panic() {
     let world = yard(4, 60.0, 6.0);
-    let mut with_nan = moved(&world, &pose(-30.0, [5.0, 8.0, 0.0]));
+    let mut with_nan = moved(&world, &pose_from_yaw_deg(-30.0, [5.0, 8.0, 0.0]));
     with_nan.points.extend([Point3::new(f32::NAN, 0.0, 0.0), Point3::new(1.0, f32::INFINITY, 2.0)]);
     let tiny = PointCloud::from_points((0..10).map(|i| Point3::new(i as f32, 0.0, 0.0)).collect());
     let unrelated = yard(99, 60.0, 6.0);
@@ -248,8 +239,7 @@ fn guard_rails_give_a_reason_per_map_and_never_panic() {
     }
     assert_eq!(status(5), &MapStatus::Unmerged(Unmerged::NoOverlap), "unrelated map");
     // The identical maps 0 and 4 end up on top of each other.
-    let same = pose_error(&report.maps[4].transform(), &report.maps[0].transform());
-    assert!(same.translation_m < 0.01 && same.rotation_deg < 0.1, "{same:?}");
+    assert_pose_close!(&report.maps[4].transform(), &report.maps[0].transform(), 0.01, 0.1, "identical maps");
     assert!(report.global_map.validate().is_ok());
 }
 

@@ -2,11 +2,9 @@
 //! moved by a large known transform, unrelated maps, degenerate input, and the invariances of the
 //! features.
 
-use std::path::Path;
-
 use cloud::PointCloud;
 use cloud::se3::pose_error;
-use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Rotation3, Vector3};
 use station::pairwise::bench::{bench_pairwise, read_transform};
 use station::pairwise::fpfh::fpfh_at;
 use station::pairwise::harris::detect_keypoints;
@@ -15,23 +13,10 @@ use station::pairwise::{
     HarrisConfig, NormalConfig, Orientation, PairwiseConfig, PairwiseError, PairwiseOutcome, register,
 };
 
-const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/kitti08_revisit");
+use testkit::{Rng, assert_pose_close, pose_from_yaw_deg, shared_data};
 
-/// xorshift64*: deterministic test data without a rand dependency.
-struct Rng(u64);
-
-impl Rng {
-    fn unit(&mut self) -> f32 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32 / (1u64 << 24) as f32
-    }
-
-    fn range(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * self.unit()
-    }
-}
+/// Inside the shared data folder.
+const KITTI: &str = "kitti08_revisit";
 
 /// Random points on the axis-aligned rectangle spanned by `corner`, `corner + a`, `corner + b`.
 fn rectangle(
@@ -44,8 +29,8 @@ fn rectangle(
 ) {
     let n = (a.cross(&b).norm() * per_m2) as usize;
     for _ in 0..n {
-        let noise = Vector3::new(rng.unit() - 0.5, rng.unit() - 0.5, rng.unit() - 0.5) * 0.02;
-        out.push(Point3::from(corner + a * rng.unit() + b * rng.unit() + noise));
+        let noise = Vector3::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5) * 0.02;
+        out.push(Point3::from(corner + a * rng.f32() + b * rng.f32() + noise));
     }
 }
 
@@ -63,47 +48,43 @@ fn boxed(rng: &mut Rng, min: Vector3<f32>, size: Vector3<f32>, per_m2: f32, out:
 fn pole(rng: &mut Rng, x: f32, y: f32, r: f32, h: f32, per_m2: f32, out: &mut Vec<Point3<f32>>) {
     let n = (std::f32::consts::TAU * r * h * per_m2) as usize;
     for _ in 0..n {
-        let a = rng.range(0.0, std::f32::consts::TAU);
-        out.push(Point3::new(x + r * a.cos(), y + r * a.sin(), rng.range(0.0, h)));
+        let a = rng.uniform_f32(0.0, std::f32::consts::TAU);
+        out.push(Point3::new(x + r * a.cos(), y + r * a.sin(), rng.uniform_f32(0.0, h)));
     }
 }
 
 /// A street 100 m long: ground, irregular buildings on both sides, parked cars, poles.
 fn street(seed: u64) -> Vec<Point3<f32>> {
-    let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+    let mut rng = Rng::xorshift64_star(Rng::spread(seed));
     let density = 25.0;
     let mut pts = Vec::new();
     rectangle(&mut rng, Vector3::new(0.0, -12.0, 0.0), Vector3::x() * 100.0, Vector3::y() * 24.0, density, &mut pts);
     for side in [-1.0f32, 1.0] {
-        let mut x = rng.range(0.0, 4.0);
+        let mut x = rng.uniform_f32(0.0, 4.0);
         while x < 96.0 {
-            let w = rng.range(5.0, 14.0).min(100.0 - x);
-            let depth = rng.range(4.0, 8.0);
-            let setback = rng.range(0.0, 2.5);
-            let h = rng.range(3.0, 12.0);
+            let w = rng.uniform_f32(5.0, 14.0).min(100.0 - x);
+            let depth = rng.uniform_f32(4.0, 8.0);
+            let setback = rng.uniform_f32(0.0, 2.5);
+            let h = rng.uniform_f32(3.0, 12.0);
             let y0 = if side > 0.0 { 7.0 + setback } else { -7.0 - setback - depth };
             boxed(&mut rng, Vector3::new(x, y0, 0.0), Vector3::new(w, depth, h), density, &mut pts);
-            x += w + rng.range(1.0, 5.0);
+            x += w + rng.uniform_f32(1.0, 5.0);
         }
     }
     for _ in 0..14 {
-        let (x, y) = (rng.range(2.0, 95.0), if rng.unit() < 0.5 { rng.range(-5.5, -4.0) } else { rng.range(2.5, 4.0) });
-        let size = Vector3::new(rng.range(3.8, 4.8), 1.8, rng.range(1.3, 1.9));
+        let (x, y) = (
+            rng.uniform_f32(2.0, 95.0),
+            if rng.f32() < 0.5 { rng.uniform_f32(-5.5, -4.0) } else { rng.uniform_f32(2.5, 4.0) },
+        );
+        let size = Vector3::new(rng.uniform_f32(3.8, 4.8), 1.8, rng.uniform_f32(1.3, 1.9));
         boxed(&mut rng, Vector3::new(x, y, 0.0), size, density, &mut pts);
     }
     for _ in 0..20 {
-        let (x, y) = (rng.range(1.0, 99.0), if rng.unit() < 0.5 { -6.2 } else { 6.2 });
-        let h = rng.range(3.0, 7.0);
+        let (x, y) = (rng.uniform_f32(1.0, 99.0), if rng.f32() < 0.5 { -6.2 } else { 6.2 });
+        let h = rng.uniform_f32(3.0, 7.0);
         pole(&mut rng, x, y, 0.15, h, density * 2.0, &mut pts);
     }
     pts
-}
-
-fn pose(yaw_deg: f64, t: [f64; 3]) -> Isometry3<f64> {
-    Isometry3::from_parts(
-        Translation3::new(t[0], t[1], t[2]),
-        UnitQuaternion::from_euler_angles(0.0, 0.0, yaw_deg.to_radians()),
-    )
 }
 
 /// `points` with `world` mapped into a frame whose pose in the world is `frame`.
@@ -131,14 +112,13 @@ fn summary(outcome: &PairwiseOutcome) -> String {
 
 #[test]
 fn kitti_reverse_revisit_without_initial_guess() {
-    let read = |name: &str| cloud::formats::read_cloud(&Path::new(KITTI).join(name)).unwrap().cloud;
+    let read = |name: &str| cloud::formats::read_cloud(&shared_data(KITTI).join(name)).unwrap().cloud;
     let (source, target) = (read("001500.bin"), read("000720.bin"));
-    let truth = read_transform(&Path::new(KITTI).join("T_000720_001500.txt")).unwrap();
+    let truth = read_transform(&shared_data(KITTI).join("T_000720_001500.txt")).unwrap();
     let bench = bench_pairwise(&source, &target, &PairwiseConfig::outdoor(), 1, Some(&truth)).unwrap();
     println!("{bench}");
     let result = bench.outcome.aligned().expect("the revisit must align");
-    let e = pose_error(&result.transform, &truth);
-    assert!(e.translation_m < 0.2 && e.rotation_deg < 1.0, "{e:?}");
+    assert_pose_close!(&result.transform, &truth, 0.2, 1.0);
 }
 
 #[test]
@@ -147,14 +127,14 @@ fn synthetic_halves_moved_far_apart_are_recovered() {
     let target: Vec<Point3<f32>> = world.iter().copied().filter(|p| p.x > 35.0).collect();
     let source_world: Vec<Point3<f32>> = world.iter().copied().filter(|p| p.x < 65.0).collect();
     // The source map's frame sits 20 m away, turned by 90°: the truth maps source into target.
-    let truth = pose(90.0, [20.0, -7.0, 0.3]);
+    let truth = pose_from_yaw_deg(90.0, [20.0, -7.0, 0.3]);
     let source = in_frame(&source_world, &truth);
     let outcome = register(&source, &PointCloud::from_points(target), &PairwiseConfig::outdoor()).unwrap();
     println!("{}", summary(&outcome));
     let result = outcome.aligned().expect("overlapping halves must align");
     let e = pose_error(&result.transform, &truth);
     println!("{e:?}, before polish {:?}", pose_error(&result.coarse_transform, &truth));
-    assert!(e.translation_m < 0.05 && e.rotation_deg < 0.5, "{e:?}");
+    assert_pose_close!(&result.transform, &truth, 0.05, 0.5);
 }
 
 #[test]
@@ -162,7 +142,10 @@ fn unrelated_maps_get_a_low_confidence() {
     let config = PairwiseConfig::outdoor();
     let a = street(1);
     let true_pair = register(
-        &in_frame(&a.iter().copied().filter(|p| p.x < 65.0).collect::<Vec<_>>(), &pose(90.0, [20.0, -7.0, 0.3])),
+        &in_frame(
+            &a.iter().copied().filter(|p| p.x < 65.0).collect::<Vec<_>>(),
+            &pose_from_yaw_deg(90.0, [20.0, -7.0, 0.3]),
+        ),
         &PointCloud::from_points(a.iter().copied().filter(|p| p.x > 35.0).collect()),
         &config,
     )
@@ -202,7 +185,7 @@ fn degenerate_input_is_an_error_or_not_aligned_never_a_panic() {
         }
     }
     // A flat plane has points and normals but nothing to lock a transform on.
-    let mut rng = Rng(5);
+    let mut rng = Rng::xorshift64_star(5);
     let mut plane = Vec::new();
     rectangle(&mut rng, Vector3::zeros(), Vector3::x() * 30.0, Vector3::y() * 30.0, 20.0, &mut plane);
     let plane = PointCloud::from_points(plane);
@@ -258,7 +241,7 @@ fn fpfh_is_invariant_to_rotation() {
 
 #[test]
 fn harris_keypoints_of_a_cube_are_its_corners() {
-    let mut rng = Rng(9);
+    let mut rng = Rng::xorshift64_star(9);
     let mut pts = Vec::new();
     let e = 2.0;
     for (corner, a, b) in [
@@ -293,8 +276,8 @@ fn harris_keypoints_of_a_cube_are_its_corners() {
 #[test]
 #[ignore]
 fn bench_kitti_revisit_50k() {
-    let read = |name: &str| cloud::formats::read_cloud(&Path::new(KITTI).join(name)).unwrap().cloud;
-    let truth = read_transform(&Path::new(KITTI).join("T_000720_001500.txt")).unwrap();
+    let read = |name: &str| cloud::formats::read_cloud(&shared_data(KITTI).join(name)).unwrap().cloud;
+    let truth = read_transform(&shared_data(KITTI).join("T_000720_001500.txt")).unwrap();
     let thin = |c: PointCloud| cloud::voxel::downsample(&c, 0.12).unwrap();
     let (source, target) = (thin(read("001500.bin")), thin(read("000720.bin")));
     for (c, name) in [(&source, "source"), (&target, "target")] {

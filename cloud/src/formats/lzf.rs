@@ -189,8 +189,7 @@ mod tests {
 
     #[test]
     fn real_scan_round_trips_and_shrinks() {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/kitti00/velodyne/000000.bin");
-        let data = std::fs::read(path).expect("KITTI test scan");
+        let data = std::fs::read(testkit::shared_data("kitti00/velodyne/000000.bin")).expect("KITTI test scan");
         let packed = compress(&data);
         assert!(packed.len() < data.len(), "{} >= {}", packed.len(), data.len());
         round_trip(&data);

@@ -498,13 +498,8 @@ mod tests {
     #[test]
     fn a_reused_search_gives_the_true_nearest_neighbours_or_nothing() {
         // A random cloud; queries moved by 0-5 cm from where they searched, as between iterations.
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = testkit::Rng::new(0x2545_f491_4f6c_dd1d);
+        let mut next = move || rng.f64();
         let points: Vec<Point3<f32>> =
             (0..3000).map(|_| Point3::new(next() * 6.0, next() * 6.0, next() * 2.0).cast::<f32>()).collect();
         let map = map_of(&points);

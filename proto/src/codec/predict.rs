@@ -251,13 +251,10 @@ mod tests {
     fn scan_predictor_follows_a_ring() {
         // A ring of radius 20 m at 1 mm with 3 mm range noise: after the first points the minor
         // axes should be nearly free, the dominant axis carry the noise.
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut rng = testkit::Rng::new(0x2545_f491_4f6c_dd1d);
         let q: Vec<[i32; 3]> = (0..2000)
             .map(|i| {
-                seed ^= seed << 13;
-                seed ^= seed >> 7;
-                seed ^= seed << 17;
-                let r = 20_000.0 + (seed % 7) as f64 - 3.0;
+                let r = 20_000.0 + (rng.next_u64() % 7) as f64 - 3.0;
                 let a = i as f64 * 0.003;
                 [(r * a.cos()).round() as i32, (r * a.sin()).round() as i32, -1700]
             })
@@ -289,11 +286,9 @@ mod tests {
     #[test]
     fn slope_matches_exact_rational_rounding() {
         // The f64 shortcut against integer arithmetic, on divisors with awkward odd factors.
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rng = testkit::Rng::new(0x9e37_79b9_7f4a_7c15);
         for _ in 0..100_000 {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
+            let seed = rng.next_u64();
             let vd = (seed as i32) >> (seed >> 59);
             let v = ((seed >> 32) as i32 >> (seed >> 59)).clamp(-vd.saturating_abs(), vd.saturating_abs());
             if vd == 0 {

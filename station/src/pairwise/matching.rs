@@ -143,13 +143,8 @@ mod tests {
     }
 
     fn descriptor(seed: u64) -> Fpfh {
-        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-        std::array::from_fn(|_| {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 40) as f32 / (1u64 << 24) as f32 * 100.0
-        })
+        let mut rng = testkit::Rng::new(testkit::Rng::spread(seed));
+        std::array::from_fn(|_| rng.f32() * 100.0)
     }
 
     #[test]

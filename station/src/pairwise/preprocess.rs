@@ -202,13 +202,8 @@ mod tests {
     #[test]
     fn thinning_keeps_what_the_greedy_pairwise_rule_keeps() {
         // Points on both sides of cell boundaries and of zero, denser than the spacing.
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
-        };
+        let mut rng = testkit::Rng::new(0x2545_f491_4f6c_dd1d);
+        let mut next = move || rng.f32() * 2.0 - 1.0;
         let pts: Vec<Point3<f32>> = (0..3000).map(|_| Point3::new(next(), next(), 0.3 * next())).collect();
         let spacing = 0.07;
         let mut kept: Vec<Point3<f32>> = Vec::new();

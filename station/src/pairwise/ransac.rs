@@ -243,7 +243,6 @@ fn refit(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use cloud::se3::pose_error;
     use nalgebra::Vector3;
 
     #[test]
@@ -264,8 +263,7 @@ mod tests {
             });
         }
         let model = ransac(&source, &target, &RansacConfig::default()).unwrap();
-        let e = pose_error(&model.transform, &truth);
-        assert!(e.translation_m < 0.05 && e.rotation_deg < 0.2, "{e:?}");
+        testkit::assert_pose_close!(&model.transform, &truth, 0.05, 0.2);
         assert!(model.inliers.len() >= 40);
         assert!(model.inliers.iter().all(|i| i % 10 == 0 || model.inliers.len() < 60));
     }

@@ -1,0 +1,10 @@
+//! What the workspace's tests share: a seeded generator for reproducible synthetic data, pose
+//! builders, a pose comparison, and the locator of the real LiDAR data.
+
+mod data;
+mod pose;
+mod rng;
+
+pub use data::shared_data;
+pub use pose::{check_pose_close, pose_from_axis_angle, pose_from_yaw_deg};
+pub use rng::Rng;
