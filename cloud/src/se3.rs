@@ -1,7 +1,9 @@
 //! SE(3) helpers: exponential and logarithm maps, interpolation, error metrics and matrix forms.
 //!
-//! Tangent vectors are ordered `[ρ (translation part); φ (rotation part)]`, both in metres/radians,
-//! with the left-multiplied convention `T' = exp(ξ) T` unless a function says otherwise.
+//! Tangent vectors are ordered `[ρ (translation part); φ (rotation part)]`, both in metres/radians.
+//! A pose is perturbed on the right, in its own (body) frame: `T ← T · exp(δ)` ([`update`]). Every
+//! solver of the workspace linearises and steps that way ([`crate::gauss_newton`]), and the
+//! information matrices it reports live in that tangent space.
 
 use nalgebra::{Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6};
 
@@ -28,6 +30,11 @@ pub fn exp(xi: &Vector6<f64>) -> Isometry3<f64> {
     let phi = xi.fixed_rows::<3>(3).into_owned();
     let rotation = UnitQuaternion::from_scaled_axis(phi);
     Isometry3::from_parts(Translation3::from(so3_left_jacobian(&phi) * rho), rotation)
+}
+
+/// The right-perturbation update `T · exp(δ)`: `δ` moves the pose in its own frame.
+pub fn update(t: &Isometry3<f64>, delta: &Vector6<f64>) -> Isometry3<f64> {
+    t * exp(delta)
 }
 
 /// SE(3) logarithm: the tangent vector `[ρ; φ]` with `exp(log(T)) = T` (rotation angle in [0, π]).

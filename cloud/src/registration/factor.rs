@@ -1,12 +1,13 @@
 //! Cost factors: how a residual between a transformed source point and a target Gaussian is weighed,
-//! and the per-thread accumulation of the Gauss-Newton system.
+//! and the normal equations of all correspondences at one pose (summed as [`crate::gauss_newton`]
+//! sums every system: per block, blocks in order).
 
 use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3, Vector6};
 use rayon::prelude::*;
 
 use super::covariance::PLANE_EPSILON;
 use super::target::{GaussianCloud, Target};
-use crate::se3::skew;
+use crate::gauss_newton::{self, BLOCK, NormalEquations, Sums, reduce_in_order, sum_blocks};
 
 /// A cost term `eᵀ W e` on the residual `e = μ_target − T p_source`; the factor chooses `W`.
 pub trait Factor: Sync {
@@ -62,30 +63,85 @@ pub struct LinearSystem {
 impl LinearSystem {
     /// The empty sum.
     pub fn zero() -> Self {
-        LinearSystem { h: Matrix6::zeros(), b: Vector6::zeros(), error: 0.0, sum_sq_distance: 0.0, inliers: 0 }
-    }
-
-    /// The sum of two partial systems (the rayon reduction).
-    fn merge(mut self, other: Self) -> Self {
-        self.h += other.h;
-        self.b += other.b;
-        self.error += other.error;
-        self.sum_sq_distance += other.sum_sq_distance;
-        self.inliers += other.inliers;
-        self
+        NormalEquations::<SquaredDistance>::zero().into()
     }
 }
 
-/// Source points per rayon work item: large enough to amortise task overhead, small enough to balance.
-const CHUNK: usize = 256;
+impl From<NormalEquations<SquaredDistance>> for LinearSystem {
+    fn from(eq: NormalEquations<SquaredDistance>) -> Self {
+        LinearSystem { h: eq.h, b: eq.b, error: eq.cost, sum_sq_distance: eq.sums.0, inliers: eq.count }
+    }
+}
+
+/// `Σ |e|²` beside the normal equations: the registration's fitness is in m², not in `W` units.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct SquaredDistance(pub(crate) f64);
+
+impl Sums for SquaredDistance {
+    fn zero() -> Self {
+        SquaredDistance(0.0)
+    }
+
+    fn merge(self, other: Self) -> Self {
+        SquaredDistance(self.0 + other.0)
+    }
+}
+
+/// A source point matched to a target Gaussian.
+pub(crate) struct Match<'a> {
+    /// Index of the target Gaussian.
+    target: u32,
+    /// The source point `p`.
+    point: &'a Vector3<f64>,
+    /// `T p`.
+    placed: Vector3<f64>,
+    /// The source point's covariance.
+    covariance: &'a Matrix3<f64>,
+}
+
+/// The residual `e = μ_target − T p` at a fixed pose, weighed by a [`Factor`]: GICP, VGICP (the same
+/// factor against voxels) and point-to-plane as one plug-in of [`crate::gauss_newton`].
+pub(crate) struct PointToGaussian<'a, T, F> {
+    target: &'a T,
+    factor: &'a F,
+    rotation: Matrix3<f64>,
+    translation: Vector3<f64>,
+}
+
+impl<'a, T: Target, F: Factor> PointToGaussian<'a, T, F> {
+    fn new(target: &'a T, factor: &'a F, pose: &Isometry3<f64>) -> Self {
+        let rotation = pose.rotation.to_rotation_matrix().into_inner();
+        PointToGaussian { target, factor, rotation, translation: pose.translation.vector }
+    }
+
+    fn place(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.rotation * p + self.translation
+    }
+
+    /// The weight and residual of a correspondence; `None` when the factor drops it.
+    #[inline(always)]
+    fn weighed(&self, m: &Match<'a>) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+        let w = self.factor.weight(self.target.covariance(m.target), m.covariance, &self.rotation)?;
+        Some((w, self.target.mean(m.target) - m.placed))
+    }
+}
+
+impl<'a, T: Target, F: Factor> gauss_newton::Factor for PointToGaussian<'a, T, F> {
+    type Term = Match<'a>;
+    type Sums = SquaredDistance;
+
+    #[inline(always)]
+    fn add(&self, m: &Match<'a>, eq: &mut NormalEquations<SquaredDistance>) {
+        let Some((w, e)) = self.weighed(m) else { return };
+        eq.add_point(m.point, &e, &w, &self.rotation);
+        eq.sums.0 += e.norm_squared();
+    }
+}
 
 /// Marks a source point without correspondence.
 pub(crate) const NO_MATCH: u32 = u32::MAX;
 
 /// Finds each source point's correspondence at `pose` (stored in `matches`) and sums the system.
-///
-/// Each rayon task folds into its own system, and the per-task systems are summed once at the end:
-/// no locks and no per-point allocation.
 pub(crate) fn linearize<T: Target, F: Factor>(
     source: &GaussianCloud,
     target: &T,
@@ -93,62 +149,21 @@ pub(crate) fn linearize<T: Target, F: Factor>(
     pose: &Isometry3<f64>,
     max_dist_sq: f64,
     matches: &mut [u32],
-) -> LinearSystem {
-    let r = pose.rotation.to_rotation_matrix().into_inner();
-    let t = pose.translation.vector;
-    matches
-        .par_chunks_mut(CHUNK)
-        .zip(source.points.par_chunks(CHUNK).zip(source.covariances.par_chunks(CHUNK)))
-        // The accumulator is a 300-byte struct: folding whole chunks moves it once per chunk, not per point.
-        .fold(LinearSystem::zero, |mut sys, (matches, (points, covariances))| {
-            for ((m, p), cs) in matches.iter_mut().zip(points).zip(covariances) {
-                let q = r * p + t;
-                *m = target.nearest(&q, max_dist_sq).unwrap_or(NO_MATCH);
-                if *m != NO_MATCH {
-                    add_term(&mut sys, target, factor, *m, p, &q, cs, &r);
-                }
+) -> NormalEquations<SquaredDistance> {
+    let gaussians = PointToGaussian::new(target, factor, pose);
+    let blocks =
+        matches.par_chunks_mut(BLOCK).zip(source.points.par_chunks(BLOCK).zip(source.covariances.par_chunks(BLOCK)));
+    sum_blocks(blocks, |(matches, (points, covariances))| {
+        let mut eq = NormalEquations::zero();
+        for ((m, point), covariance) in matches.iter_mut().zip(points).zip(covariances) {
+            let placed = gaussians.place(point);
+            *m = target.nearest(&placed, max_dist_sq).unwrap_or(NO_MATCH);
+            if *m != NO_MATCH {
+                gauss_newton::Factor::add(&gaussians, &Match { target: *m, point, placed, covariance }, &mut eq);
             }
-            sys
-        })
-        .reduce(LinearSystem::zero, LinearSystem::merge)
-}
-
-/// Adds one correspondence's `Jᵀ W J`, `Jᵀ W e` and `eᵀ W e`.
-#[allow(clippy::too_many_arguments)] // the hot loop: passing parts avoids rebuilding a struct per point
-#[inline(always)]
-fn add_term<T: Target, F: Factor>(
-    sys: &mut LinearSystem,
-    target: &T,
-    factor: &F,
-    m: u32,
-    p: &Vector3<f64>,
-    q: &Vector3<f64>,
-    source_cov: &Matrix3<f64>,
-    r: &Matrix3<f64>,
-) {
-    let Some(w) = factor.weight(target.covariance(m), source_cov, r) else { return };
-    let e = target.mean(m) - q;
-    // d(T exp(δ) p)/dδ = R [I, −[p]×] and e = μ − T p, so J = −R [I, −[p]×]. In the source frame
-    // (A = Rᵀ W R, g = Rᵀ W e) the blocks are H = [A, −A[p]×; [p]×A, −[p]×A[p]×] and
-    // b = [−g; g × p]: fewer products than forming the 3x6 Jacobian.
-    let we = w * e;
-    let a = r.transpose() * w * r;
-    let g = r.transpose() * we;
-    let s = skew(p);
-    let a_s = a * s;
-    let mut h = Matrix6::zeros();
-    h.fixed_view_mut::<3, 3>(0, 0).copy_from(&a);
-    h.fixed_view_mut::<3, 3>(0, 3).copy_from(&-a_s);
-    h.fixed_view_mut::<3, 3>(3, 0).copy_from(&-a_s.transpose());
-    h.fixed_view_mut::<3, 3>(3, 3).copy_from(&-(s * a_s));
-    sys.h += h;
-    let mut b = Vector6::zeros();
-    b.fixed_rows_mut::<3>(0).copy_from(&-g);
-    b.fixed_rows_mut::<3>(3).copy_from(&g.cross(p));
-    sys.b += b;
-    sys.error += e.dot(&we);
-    sys.sum_sq_distance += e.norm_squared();
-    sys.inliers += 1;
+        }
+        eq
+    })
 }
 
 /// The cost `Σ eᵀ W e` at `pose` over the correspondences fixed by the last [`linearize`].
@@ -159,22 +174,20 @@ pub(crate) fn evaluate<T: Target, F: Factor>(
     pose: &Isometry3<f64>,
     matches: &[u32],
 ) -> f64 {
-    let r = pose.rotation.to_rotation_matrix().into_inner();
-    let t = pose.translation.vector;
-    matches
-        .par_chunks(CHUNK)
-        .zip(source.points.par_chunks(CHUNK).zip(source.covariances.par_chunks(CHUNK)))
-        .map(|(matches, (points, covariances))| {
-            let mut cost = 0.0;
-            for ((&m, p), cs) in matches.iter().zip(points).zip(covariances) {
-                if m == NO_MATCH {
-                    continue;
-                }
-                let Some(w) = factor.weight(target.covariance(m), cs, &r) else { continue };
-                let e = target.mean(m) - (r * p + t);
+    let gaussians = PointToGaussian::new(target, factor, pose);
+    let blocks = matches.par_chunks(BLOCK).zip(source.points.par_chunks(BLOCK).zip(source.covariances.par_chunks(BLOCK)));
+    let block_cost = |(matches, (points, covariances)): (&[u32], (&[Vector3<f64>], &[Matrix3<f64>]))| {
+        let mut cost = 0.0;
+        for ((&target, point), covariance) in matches.iter().zip(points).zip(covariances) {
+            if target == NO_MATCH {
+                continue;
+            }
+            let m = Match { target, point, placed: gaussians.place(point), covariance };
+            if let Some((w, e)) = gaussians.weighed(&m) {
                 cost += e.dot(&(w * e));
             }
-            cost
-        })
-        .sum()
+        }
+        cost
+    };
+    reduce_in_order(blocks, block_cost, 0.0, |a, b| a + b)
 }

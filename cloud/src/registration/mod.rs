@@ -4,8 +4,9 @@
 //! put the target in a search structure (a k-d tree for GICP, a hashed map of Gaussian voxels for
 //! VGICP, [`voxel_map`]), then minimise `Σ eᵀ W e` over the pose with Levenberg-Marquardt, where `e`
 //! is the distance from a transformed source point to its nearest target Gaussian and the [`Factor`]
-//! chooses `W` (GICP: `(C_t + R C_s Rᵀ)⁻¹`). Each iteration sums the 6x6 system with one rayon
-//! fold/reduce; run inside a `rayon::ThreadPool::install` to choose the number of threads.
+//! chooses `W` (GICP: `(C_t + R C_s Rᵀ)⁻¹`). Each iteration sums the 6x6 system in blocks, one rayon
+//! task each, the blocks then in order ([`crate::gauss_newton`]): the result does not depend on the
+//! number of threads, which a `rayon::ThreadPool::install` chooses.
 //!
 //! Inputs are used as given: downsample first (0.1-0.5 m voxels, [`crate::voxel::downsample`]).
 
@@ -23,8 +24,9 @@ pub use target::{GaussianCloud, Target};
 pub use voxel_map::{GaussianVoxel, GaussianVoxelMap, VoxelSearch};
 
 use crate::PointCloud;
+use crate::gauss_newton::{NormalEquations, solve_damped};
 use crate::se3;
-use factor::{NO_MATCH, evaluate, linearize};
+use factor::{NO_MATCH, SquaredDistance, evaluate, linearize};
 
 /// Fewest points a cloud needs: below three the pose is undetermined whatever their shape.
 pub const MIN_POINTS: usize = 3;
@@ -222,12 +224,12 @@ pub fn register<T: Target, F: Factor>(
     let mut matches = vec![NO_MATCH; source.len()];
     let mut pose = *init;
     let mut lambda = config.lm_initial_lambda;
-    let mut system = LinearSystem::zero();
+    let mut system = NormalEquations::<SquaredDistance>::zero();
     let (mut iterations, mut converged) = (0, false);
     while iterations < config.max_iterations && !converged {
         system = linearize(source, target, factor, &pose, max_dist_sq, &mut matches);
         iterations += 1;
-        if system.inliers == 0 {
+        if system.count == 0 {
             break;
         }
         let cost = |candidate: &Isometry3<f64>| evaluate(source, target, factor, candidate, &matches);
@@ -243,18 +245,19 @@ pub fn register<T: Target, F: Factor>(
         transform: pose,
         iterations,
         converged,
-        inliers: system.inliers,
-        error: system.error,
-        fitness: system.sum_sq_distance / system.inliers as f64,
+        inliers: system.count,
+        error: system.cost,
+        fitness: system.sums.0 / system.count as f64,
         hessian: system.h,
     })
 }
 
-/// One damped step: solves `(H + λI) δ = −b`, raising λ until the cost does not grow.
+/// One damped step: solves `(H + λI) δ = −b` and moves `T ← T · exp(δ)`, raising λ until the cost
+/// does not grow.
 ///
 /// Returns the new pose (if a step was accepted) and the last step tried.
-fn lm_step(
-    system: &LinearSystem,
+fn lm_step<S>(
+    system: &NormalEquations<S>,
     pose: &Isometry3<f64>,
     lambda: &mut f64,
     config: &RegistrationConfig,
@@ -262,13 +265,12 @@ fn lm_step(
 ) -> (Option<Isometry3<f64>>, Vector6<f64>) {
     let mut delta = Vector6::zeros();
     for _ in 0..config.max_inner_iterations.max(1) {
-        let damped = system.h + Matrix6::identity() * *lambda;
-        if let Some(step) = damped.cholesky().map(|c| c.solve(&-system.b)).filter(|d| d.iter().all(|v| v.is_finite())) {
+        if let Some(step) = solve_damped(system, *lambda) {
             delta = step;
-            let mut candidate = pose * se3::exp(&delta);
+            let mut candidate = se3::update(pose, &delta);
             candidate.rotation.renormalize();
             // `<=` rejects NaN costs.
-            if cost(&candidate) <= system.error {
+            if cost(&candidate) <= system.cost {
                 *lambda /= config.lm_lambda_factor;
                 return (Some(candidate), delta);
             }
@@ -293,7 +295,7 @@ pub fn linear_system<T: Target, F: Factor>(
     max_correspondence_distance: f64,
 ) -> LinearSystem {
     let mut matches = vec![NO_MATCH; source.len()];
-    linearize(source, target, factor, pose, max_correspondence_distance.powi(2), &mut matches)
+    linearize(source, target, factor, pose, max_correspondence_distance.powi(2), &mut matches).into()
 }
 
 /// Rejects clouds that are too small, non-finite or all one point.

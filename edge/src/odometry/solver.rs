@@ -1,9 +1,14 @@
 //! Scan-to-map pose estimation (F-LOAM eq. 4): edge features to lines, plane features to planes,
-//! robust Gauss-Newton on SE(3) with analytic Jacobians, and degeneracy-aware updates.
+//! robust Gauss-Newton on SE(3) with analytic Jacobians, and degeneracy-aware updates
+//! ([`cloud::gauss_newton`]: the factor, the summation and the solution remapping).
 
 use cloud::eigen3::{SymmetricEigen3, symmetric_eigen3};
 use cloud::moments::mean_covariance;
-use nalgebra::{Isometry3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
+use cloud::gauss_newton::{
+    BLOCK, LeverArm, NormalEquations, Remapped, SignedDistance, SignedDistanceFactor, solve_remapped, sum_block,
+    sum_blocks,
+};
+use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
 use super::SolverConfig;
@@ -12,13 +17,7 @@ use super::local_map::{FeatureMap, ScanLine};
 
 /// A linearised residual `r = n · (T p − q)`: the signed distance of the transformed feature `p`
 /// from a line (through `q`, `n` ⟂ line toward the point) or a plane (through `q`, normal `n`).
-#[derive(Clone, Copy, Debug)]
-struct Residual {
-    source: Point3<f64>,
-    anchor: Point3<f64>,
-    normal: Vector3<f64>,
-    weight: f64,
-}
+type Residual = SignedDistance;
 
 /// The result of one pose estimate.
 #[derive(Clone, Debug)]
@@ -268,91 +267,21 @@ fn within_gate(
     normal.dot(&(world - centre)).abs() <= config.plane_gate * spread
 }
 
-/// Normal equations H δ = −b accumulated over residuals, with a Huber kernel.
+/// The normal equations H δ = −b of all residuals at `pose`, with a Huber kernel.
 ///
 /// The perturbation is taken in the sensor frame, `T ← T exp(δ)`, so that the conditioning of H
-/// does not depend on how far the robot is from the odometry origin (in world coordinates a
-/// rotation's eigenvalues grow with the lever arm to the origin).
-#[derive(Clone, Copy)]
-struct Normal {
-    h: Matrix6<f64>,
-    b: Vector6<f64>,
-    weight_sum: f64,
-    /// Σ w |p|² over the sensor-frame points: the lever arm that puts rotations in metres.
-    lever_sum: f64,
-}
-
-impl Normal {
-    fn zero() -> Self {
-        Normal { h: Matrix6::zeros(), b: Vector6::zeros(), weight_sum: 0.0, lever_sum: 0.0 }
-    }
-
-    /// Right perturbation `T ← T exp(δ)`: ∂(T p)/∂δ = R [I, −[p]×], so with m = Rᵀ n the row is
-    /// J = [mᵀ, (p × m)ᵀ].
-    fn add(mut self, r: &Residual, pose: &Isometry3<f64>, huber: f64) -> Self {
-        let w = pose * r.source;
-        let e = r.normal.dot(&(w - r.anchor));
-        let robust = if e.abs() <= huber { 1.0 } else { huber / e.abs() };
-        let k = r.weight * robust;
-        let m = pose.rotation.inverse() * r.normal;
-        let rot = r.source.coords.cross(&m);
-        let j = Vector6::new(m.x, m.y, m.z, rot.x, rot.y, rot.z);
-        self.h += k * j * j.transpose();
-        self.b += k * e * j;
-        self.weight_sum += r.weight;
-        self.lever_sum += r.weight * r.source.coords.norm_squared();
-        self
-    }
-
-    fn merge(mut self, o: Self) -> Self {
-        self.h += o.h;
-        self.b += o.b;
-        self.weight_sum += o.weight_sum;
-        self.lever_sum += o.lever_sum;
-        self
-    }
-}
-
-/// Residuals summed per thread in fixed blocks, the blocks then summed in order.
-const NORMAL_BLOCK: usize = 256;
-
-/// The normal equations of all residuals at `pose`. The sum does not depend on how the work was
-/// split between threads: a sum in another order differs in the last bits, and over a few hundred
-/// scans such bits grow into millimetres, so that a robot replaying the same scans after a restart
-/// would make other keyframes.
-fn normal_equations(edges: &[Residual], planes: &[Residual], pose: &Isometry3<f64>, huber: f64) -> Normal {
-    let block = |c: &[Residual]| c.iter().fold(Normal::zero(), |acc, r| acc.add(r, pose, huber));
-    let blocks: Vec<Normal> =
-        edges.par_chunks(NORMAL_BLOCK).chain(planes.par_chunks(NORMAL_BLOCK)).map(block).collect();
-    blocks.into_iter().fold(Normal::zero(), Normal::merge)
-}
-
-/// Solves H δ = −b, keeping δ at zero along eigen-directions whose eigenvalue is below
-/// `degeneracy_ratio` × Σw (Zhang, Kaess & Singh 2016, "solution remapping"): there the scan does
-/// not constrain the pose, so the motion prior is kept instead of drifting.
-///
-/// Rotations are scaled by the RMS lever arm L first (δ' = [ρ; L φ]), so that both halves of the
-/// problem are in metres and their eigenvalues compare.
-fn solve(n: &Normal, config: &SolverConfig) -> (Vector6<f64>, usize, f64) {
-    let sum = n.weight_sum.max(1e-12);
-    let lever = (n.lever_sum / sum).sqrt().max(1e-3);
-    let scale = Vector6::new(1.0, 1.0, 1.0, 1.0 / lever, 1.0 / lever, 1.0 / lever);
-    let s = Matrix6::from_diagonal(&scale);
-    let eig = SymmetricEigen::new(s * n.h * s);
-    let threshold = config.degeneracy_ratio * sum;
-    let projected_b = eig.eigenvectors.transpose() * (s * n.b);
-    let mut delta_eig = Vector6::zeros();
-    let mut degenerate = 0;
-    for i in 0..6 {
-        let lambda = eig.eigenvalues[i];
-        if lambda > threshold {
-            delta_eig[i] = -projected_b[i] / lambda;
-        } else {
-            degenerate += 1;
-        }
-    }
-    let min_ratio = eig.eigenvalues.min() / sum;
-    (s * (eig.eigenvectors * delta_eig), degenerate, min_ratio)
+/// does not depend on how far the robot is from the odometry origin. The sum does not depend on how
+/// the work was split between threads ([`cloud::gauss_newton::sum_blocks`]): over a few hundred
+/// scans bits of another order grow into millimetres, so that a robot replaying the same scans
+/// after a restart would make other keyframes.
+fn normal_equations(
+    edges: &[Residual],
+    planes: &[Residual],
+    pose: &Isometry3<f64>,
+    huber: f64,
+) -> NormalEquations<LeverArm> {
+    let factor = SignedDistanceFactor::new(pose, huber);
+    sum_blocks(edges.par_chunks(BLOCK).chain(planes.par_chunks(BLOCK)), |c| sum_block(&factor, c))
 }
 
 /// The map searches of one scan's features, kept across estimates against the same maps (the
@@ -419,8 +348,10 @@ pub fn estimate(
         let mut converged = false;
         for _ in 0..config.inner_iterations.max(1) {
             let normal = normal_equations(&edge_res, &plane_res, &pose, config.huber);
-            let (delta, degenerate, min_ratio) = solve(&normal, config);
-            pose *= cloud::se3::exp(&delta);
+            // Where the scan does not constrain the pose, the motion prior is kept instead of drifting.
+            let Remapped { delta, degenerate, min_eigen_ratio: min_ratio } =
+                solve_remapped(&normal, config.degeneracy_ratio);
+            pose = cloud::se3::update(&pose, &delta);
             out = Estimate {
                 pose,
                 iterations: iteration,

@@ -4,11 +4,13 @@
 //! pair can sit half a voxel apart and the fitted transform is good to a decimetre or two. A few
 //! Gauss-Newton iterations of point-to-plane ICP (Chen & Medioni 1992) on a few thousand source
 //! surfels against the target surfels and their normals bring it to centimetres for a millisecond
-//! each. This is not fine registration: it runs on the downsampled maps, with a hard distance gate,
+//! each, in the workspace's right perturbation `T ← T · exp(δ)` ([`cloud::gauss_newton`]). This is not fine registration: it runs on the downsampled maps, with a hard distance gate,
 //! and the caller may still chain VGICP on full-resolution maps. It is skipped when
 //! `iterations = 0`; the unpolished transform is kept next to the polished one.
 
-use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use cloud::gauss_newton::{BLOCK, Factor, NormalEquations, SignedDistance, SignedDistanceFactor, solve_damped, sum_blocks};
+use cloud::se3;
+use nalgebra::{Isometry3, Point3, Vector6};
 use rayon::prelude::*;
 
 use super::FeatureError;
@@ -48,8 +50,9 @@ pub fn polish(source: &Surfels, target: &Surfels, transform: &Isometry3<f64>, co
     let samples: Vec<Point3<f64>> = with_normal.iter().step_by(stride).map(|&i| source.points[i].cast()).collect();
     let mut current = *transform;
     for _ in 0..config.iterations {
-        let Some(step) = gauss_newton_step(&samples, target, &current, config.max_distance) else { break };
-        current = step * current;
+        let Some(delta) = gauss_newton_step(&samples, target, &current, config.max_distance) else { break };
+        let step = se3::exp(&delta);
+        current *= step;
         // Converged: below a tenth of a millimetre and a thousandth of a degree.
         if step.translation.vector.norm() < 1e-4 && step.rotation.angle() < 2e-5 {
             break;
@@ -58,41 +61,39 @@ pub fn polish(source: &Surfels, target: &Surfels, transform: &Isometry3<f64>, co
     current
 }
 
-/// One linearised least-squares step `δ = [t; ω]` minimising `Σ ((p + ω × p + t − q) · n)²`.
+/// One Gauss-Newton step `δ = [ρ; φ]` for `T ← T · exp(δ)` minimising `Σ (n · (T exp(δ) p − q))²`
+/// over the source samples `p` and their nearest target surfels `q` (normal `n`).
 fn gauss_newton_step(
     samples: &[Point3<f64>],
     target: &Surfels,
     transform: &Isometry3<f64>,
     max_distance: f32,
-) -> Option<Isometry3<f64>> {
+) -> Option<Vector6<f64>> {
     let gate = max_distance * max_distance;
-    let (h, b, count) = samples
-        .par_iter()
-        .filter_map(|s| {
-            let p = transform * s;
-            let pf = p.cast::<f32>();
-            let nn = target.tree.nearest(&[pf.x, pf.y, pf.z])?;
+    // Plain least squares: the distance gate already keeps outliers out.
+    let factor = SignedDistanceFactor::new(transform, f64::INFINITY);
+    let eq = sum_blocks(samples.par_chunks(BLOCK), |block| {
+        let mut eq = NormalEquations::zero();
+        for source in block {
+            let pf = (transform * source).cast::<f32>();
+            let Some(nn) = target.tree.nearest(&[pf.x, pf.y, pf.z]) else { continue };
             if nn.dist_sq > gate || !target.has_normal(nn.index) {
-                return None;
+                continue;
             }
-            let n: Vector3<f64> = target.normals[nn.index].cast();
-            let r = (p - target.points[nn.index].cast::<f64>()).dot(&n);
-            let j = Vector6::new(n.x, n.y, n.z, 0.0, 0.0, 0.0) + {
-                let c = p.coords.cross(&n);
-                Vector6::new(0.0, 0.0, 0.0, c.x, c.y, c.z)
+            let term = SignedDistance {
+                source: *source,
+                anchor: target.points[nn.index].cast(),
+                normal: target.normals[nn.index].cast(),
+                weight: 1.0,
             };
-            Some((j * j.transpose(), j * r, 1usize))
-        })
-        .reduce(|| (Matrix6::zeros(), Vector6::zeros(), 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+            factor.add(&term, &mut eq);
+        }
+        eq
+    });
     // Fewer pairs than unknowns, or a degenerate geometry (one plane): leave the transform alone.
-    if count < 6 {
+    if eq.count < 6 {
         return None;
     }
     // A little damping keeps unobservable directions (sliding along a lone plane) at zero.
-    let damped = h + Matrix6::identity() * (1e-9 * h.trace()).max(1e-12);
-    let delta = -damped.cholesky()?.solve(&b);
-    delta.iter().all(|v| v.is_finite()).then(|| {
-        let rotation = UnitQuaternion::from_scaled_axis(Vector3::new(delta[3], delta[4], delta[5]));
-        Isometry3::from_parts(Translation3::new(delta[0], delta[1], delta[2]), rotation)
-    })
+    solve_damped(&eq, (1e-9 * eq.h.trace()).max(1e-12))
 }
