@@ -124,14 +124,14 @@ fn real_pair_reverse_direction_gives_the_inverse() {
         let forward = align(&source, &target, &Isometry3::identity(), method, &config).unwrap();
         let backward = align(&target, &source, &Isometry3::identity(), method, &config).unwrap();
         assert!(forward.converged && backward.converged, "{method:?}: {forward:?} {backward:?}");
-        let e = pose_error(&backward.transform.inverse(), &forward.transform);
+        let e = cloud::se3::pose_error(&backward.transform.inverse(), &forward.transform);
         eprintln!("{method:?}: forward vs inverted backward {:.4} m {:.4} deg", e.translation_m, e.rotation_deg);
-        assert_close(
+        assert_pose_close!(
             &backward.transform.inverse(),
             &forward.transform,
             REAL_MAX_M,
             REAL_MAX_DEG,
-            &format!("{method:?} target onto source, inverted"),
+            "{method:?} target onto source, inverted"
         );
     }
 }
