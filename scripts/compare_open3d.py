@@ -17,7 +17,7 @@
 # CPUs (sched_setaffinity), so neither OpenMP nor TBB can use more.
 #
 # Commands (from the repository root, release binaries built):
-#   cargo build --release -p station --bin emr-station --example sim_maps
+#   cargo build --release -p station --bin emr-station && cargo build --release -p sim --example sim_maps
 #   ./target/release/examples/sim_maps warehouse-large /tmp/simcmp/wl       # map0.ply map1.ply truth_0_1.txt
 #   ./target/release/examples/sim_maps campus /tmp/simcmp/campus
 #   # ours: timing + error (truth_0_1 maps map1 into map0's frame)

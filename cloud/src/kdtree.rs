@@ -93,13 +93,9 @@ impl KdTree {
 mod tests {
     use super::*;
 
-    fn lcg_points(n: usize, seed: u64) -> Vec<[f32; 3]> {
-        let mut s = seed;
-        let mut next = move || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((s >> 33) as f32 / (1u64 << 31) as f32) * 20.0 - 10.0
-        };
-        (0..n).map(|_| [next(), next(), next()]).collect()
+    fn random_points(n: usize, seed: u64) -> Vec<[f32; 3]> {
+        let mut rng = testkit::Rng::new(seed);
+        (0..n).map(|_| std::array::from_fn(|_| rng.uniform_f32(-10.0, 10.0))).collect()
     }
 
     fn brute_knn(pts: &[[f32; 3]], q: &[f32; 3], k: usize) -> Vec<f32> {
@@ -111,9 +107,9 @@ mod tests {
 
     #[test]
     fn matches_brute_force() {
-        let pts = lcg_points(5000, 7);
+        let pts = random_points(5000, 7);
         let tree = KdTree::new(&pts);
-        for q in lcg_points(200, 99) {
+        for q in random_points(200, 99) {
             let got: Vec<f32> = tree.knn(&q, 8).iter().map(|n| n.dist_sq).collect();
             let want = brute_knn(&pts, &q, 8);
             for (g, w) in got.iter().zip(&want) {
@@ -146,9 +142,9 @@ mod tests {
 
     #[test]
     fn batch_equals_single() {
-        let pts = lcg_points(2000, 3);
+        let pts = random_points(2000, 3);
         let tree = KdTree::new(&pts);
-        let qs = lcg_points(100, 4);
+        let qs = random_points(100, 4);
         let batch = tree.knn_batch(&qs, 5);
         for (q, b) in qs.iter().zip(&batch) {
             assert_eq!(&tree.knn(q, 5), b);

@@ -171,11 +171,8 @@ mod tests {
     use super::*;
 
     fn cloud(n: usize, seed: u64) -> Vec<Point3<f32>> {
-        let mut s = seed;
-        let mut next = move || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((s >> 33) as f32 / (1u64 << 31) as f32) * 20.0 - 10.0
-        };
+        let mut rng = testkit::Rng::new(seed);
+        let mut next = move || rng.uniform_f32(-10.0, 10.0);
         // A flattened cloud with duplicates: ties and a thin axis are where a tree goes wrong.
         let mut pts: Vec<Point3<f32>> = (0..n).map(|_| Point3::new(next(), next(), 0.05 * next())).collect();
         pts.extend_from_within(..n / 10);

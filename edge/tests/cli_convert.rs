@@ -8,7 +8,7 @@ fn emr_edge(args: &[&str]) -> Output {
 }
 
 fn kitti00() -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/kitti00"))
+    testkit::shared_data("kitti00")
 }
 
 fn fixture(name: &str) -> PathBuf {

@@ -44,6 +44,7 @@ pub mod bench;
 pub mod bvh;
 pub mod export;
 pub mod geometry;
+pub mod maps;
 pub mod noise;
 pub mod scenario;
 pub mod sensor;
@@ -54,6 +55,7 @@ pub mod world;
 pub mod worlds;
 
 pub use export::{ExportError, Written, write_kitti};
+pub use maps::{MapsError, RobotMaps};
 pub use geometry::{Aabb, Cuboid, Cylinder, Hit, Object, Plane, Ray, Shape, Sphere, Triangle};
 pub use scenario::{CATALOG, FRAME_RATE, Scenario, ScenarioInfo, UnknownScenario, scenario_names};
 pub use sensor::{SensorKind, SensorModel, UnknownSensor};

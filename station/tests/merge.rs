@@ -4,7 +4,7 @@
 use cloud::PointCloud;
 use cloud::se3::{PoseError, pose_error};
 use nalgebra::{Isometry3, Point3};
-use sim::{Scenario, SimConfig, Simulator};
+use sim::{RobotMaps, Scenario};
 use station::merge::merger::MergerStats;
 use station::merge::{
     Edge, INDOOR_MIN_CONFIDENCE, MapStatus, MergeConfig, MergeError, MergeReport, Merger, OUTDOOR_MIN_CONFIDENCE,
@@ -12,33 +12,13 @@ use station::merge::{
 };
 use testkit::{Rng, assert_pose_close, pose_from_yaw_deg};
 
-/// Robot maps of a scenario and the world pose of each map's frame.
-struct SimMaps {
-    maps: Vec<PointCloud>,
-    frames: Vec<Isometry3<f64>>,
-}
-
-impl SimMaps {
-    /// Truth of map `r` in map `s`'s frame: `T0_s⁻¹ T0_r`.
-    fn truth(&self, s: usize, r: usize) -> Isometry3<f64> {
-        self.frames[s].inverse() * self.frames[r]
-    }
-}
-
-/// Robot `robot`'s exact map ([`Simulator::exact_map`]) and the world pose of its frame.
-fn robot_map(scenario: &Scenario, robot: usize, stride: usize, voxel: f32) -> (PointCloud, Isometry3<f64>) {
-    let sim = Simulator::new(scenario.clone(), robot, SimConfig::default()).unwrap();
-    (sim.exact_map(stride, voxel).unwrap(), sim.pose_at(0.0))
-}
-
-fn sim_maps(name: &str, stride: usize, voxel: f32) -> SimMaps {
-    let scenario = Scenario::by_name(name).unwrap();
-    let (maps, frames) = (0..scenario.robots().len()).map(|r| robot_map(&scenario, r, stride, voxel)).unzip();
-    SimMaps { maps, frames }
+/// Every robot's exact map of a built-in scenario.
+fn sim_maps(name: &str, stride: usize, voxel: f32) -> RobotMaps {
+    RobotMaps::build(&Scenario::by_name(name).unwrap(), stride, voxel).unwrap()
 }
 
 /// Error of every merged map's global transform against the truth in the reference's frame.
-fn errors(report: &MergeReport, sim: &SimMaps) -> Vec<Option<PoseError>> {
+fn errors(report: &MergeReport, sim: &RobotMaps) -> Vec<Option<PoseError>> {
     let reference = report.reference.expect("a reference map");
     report
         .maps

@@ -2,12 +2,12 @@
 //! registration methods on clouds whose ground truth is known to the last bit.
 //!
 //! ```text
-//! cargo run --release -p station --example sim_maps -- SCENARIO OUT_DIR [--stride 10] [--voxel 0.1]
+//! cargo run --release -p sim --example sim_maps -- SCENARIO OUT_DIR [--stride 10] [--voxel 0.1]
 //! ```
 //!
 //! For each robot `r` of the scenario, `OUT_DIR/map{r}.ply` (binary PLY, x y z) holds every
 //! `stride`-th sweep, each point placed by the exact pose at its own firing time, expressed in the
-//! robot's pose at t = 0 and voxel-downsampled (`Simulator::exact_map`, as in station/tests/merge.rs). For each
+//! robot's pose at t = 0 and voxel-downsampled (`RobotMaps`, as station/tests/merge.rs merges them). For each
 //! ordered pair of robots `a != b`, `OUT_DIR/truth_{a}_{b}.txt` holds the 4x4 row-major matrix
 //! `T0_a⁻¹ T0_b` mapping map `b`'s points into map `a`'s frame: the `--reference` of
 //! `emr-station bench merge OUT_DIR/map{b}.ply OUT_DIR/map{a}.ply`.
@@ -16,10 +16,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Parser;
-use cloud::PointCloud;
 use cloud::formats::{FileFormat, PlyEncoding, write_cloud};
 use nalgebra::Isometry3;
-use sim::{Scenario, SimConfig, Simulator};
+use sim::{RobotMaps, Scenario};
 
 #[derive(Parser)]
 struct Args {
@@ -35,17 +34,6 @@ struct Args {
     voxel: f32,
 }
 
-/// Robot `robot`'s map in its frame at t = 0, and that frame's world pose.
-fn robot_map(
-    scenario: &Scenario,
-    robot: usize,
-    stride: usize,
-    voxel: f32,
-) -> anyhow::Result<(PointCloud, Isometry3<f64>)> {
-    let sim = Simulator::new(scenario.clone(), robot, SimConfig::default())?;
-    Ok((sim.exact_map(stride, voxel)?, sim.pose_at(0.0)))
-}
-
 /// Writes `m` as four lines of four numbers.
 fn write_matrix(path: &Path, m: &Isometry3<f64>) -> anyhow::Result<()> {
     let h = m.to_homogeneous();
@@ -58,17 +46,15 @@ fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     let scenario = Scenario::by_name(&args.scenario)?;
     std::fs::create_dir_all(&args.out_dir).with_context(|| args.out_dir.display().to_string())?;
-    let mut frames = Vec::new();
-    for r in 0..scenario.robots().len() {
-        let (map, origin) = robot_map(&scenario, r, args.stride, args.voxel)?;
+    let robots = RobotMaps::build(&scenario, args.stride, args.voxel)?;
+    for (r, map) in robots.maps.iter().enumerate() {
         let path = args.out_dir.join(format!("map{r}.ply"));
-        write_cloud(&path, &map, FileFormat::Ply(PlyEncoding::BinaryLittleEndian))?;
+        write_cloud(&path, map, FileFormat::Ply(PlyEncoding::BinaryLittleEndian))?;
         println!("{}: {} points", path.display(), map.len());
-        frames.push(origin);
     }
-    for (a, fa) in frames.iter().enumerate() {
-        for (b, fb) in frames.iter().enumerate().filter(|&(b, _)| b != a) {
-            write_matrix(&args.out_dir.join(format!("truth_{a}_{b}.txt")), &(fa.inverse() * fb))?;
+    for a in 0..robots.maps.len() {
+        for b in (0..robots.maps.len()).filter(|&b| b != a) {
+            write_matrix(&args.out_dir.join(format!("truth_{a}_{b}.txt")), &robots.truth(a, b))?;
         }
     }
     Ok(())
