@@ -248,8 +248,8 @@ impl OdometryConfig {
     /// Indoor preset (warehouses, offices: ranges under ~40 m): finer maps, as F-LOAM's indoor launch,
     /// and edge lines only when they rise 60° or more: indoors most shallow "lines" are floor-object
     /// junctions and shelf fronts, which a spinning LiDAR places in height only to its beam spacing,
-    /// and they bias the pitch. The outdoor preset keeps lines from 30° up: steeper leaves campus
-    /// roads short of constraints, every line biases the roll on sloped ground.
+    /// and they bias the pitch. The outdoor preset keeps lines from 30° up: every line biases the
+    /// roll on sloped ground (30° and 60° measure alike today; the README has both).
     pub fn indoor() -> Self {
         OdometryConfig {
             scan_period: 0.1,
