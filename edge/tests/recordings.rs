@@ -786,6 +786,31 @@ fn a_kitti_sequence_layout_finds_velodyne_and_the_times_beside_it() {
     }
 }
 
+/// A snippet cut from a KITTI sequence: the sequence's `times.txt`, some of its scans. Each scan
+/// takes the stamp of the index it is named by.
+#[test]
+fn a_kitti_snippet_takes_the_stamps_of_its_scan_indices() {
+    let dir = tempfile::tempdir().unwrap();
+    let velodyne = dir.path().join("velodyne");
+    std::fs::create_dir(&velodyne).unwrap();
+    for index in [4, 5, 9] {
+        write_cloud(&velodyne.join(format!("{index:06}.bin")), &small_kitti(index), FileFormat::KittiBin).unwrap();
+    }
+    let times: String = (0..12).map(|i| format!("{}\n", 100.0 + 0.1 * f64::from(i))).collect();
+    std::fs::write(dir.path().join("times.txt"), &times).unwrap();
+    let stamps: Vec<f64> = open(dir.path(), &RecordingOptions::default()).unwrap().map(|s| s.unwrap().stamp).collect();
+    let expected: Vec<f64> = [4, 5, 9].iter().map(|&i| 100.0 + 0.1 * f64::from(i)).collect();
+    assert_eq!(stamps, expected);
+    // A scan named by an index past the stamps, or not by an index at all, leaves no way to pair.
+    write_cloud(&velodyne.join("000012.bin"), &small_kitti(0), FileFormat::KittiBin).unwrap();
+    let err = open(dir.path(), &RecordingOptions::default()).unwrap_err();
+    assert!(err.to_string().contains("12 stamps for 4 scan files"), "{err}");
+    std::fs::remove_file(velodyne.join("000012.bin")).unwrap();
+    write_cloud(&velodyne.join("scan_a.bin"), &small_kitti(0), FileFormat::KittiBin).unwrap();
+    let err = open(dir.path(), &RecordingOptions::default()).unwrap_err();
+    assert!(err.to_string().contains("12 stamps for 4 scan files"), "{err}");
+}
+
 #[test]
 fn invalid_points_are_dropped_and_counted_and_a_bad_file_fails_alone() {
     let dir = tempfile::tempdir().unwrap();

@@ -2,7 +2,9 @@
 //!
 //! Stamps come from `times.txt` (one number of seconds per line, as KITTI ships it) in the
 //! directory, or in its parent when the directory is a KITTI `velodyne/` folder. Without one, scan
-//! `i` is stamped `i * period` ([`super::RecordingOptions::directory_period_s`]).
+//! `i` is stamped `i * period` ([`super::RecordingOptions::directory_period_s`]). A `times.txt`
+//! with more lines than there are scans is the usual cut of a KITTI snippet (the sequence's stamps,
+//! a few of its scans): KITTI names a scan by its index, so scan `000123.bin` takes line 123.
 
 use std::path::{Path, PathBuf};
 
@@ -28,7 +30,7 @@ impl DirectorySource {
             return Err(RecordingErrorKind::NoScans);
         }
         let stamps = match times_file(&scan_dir) {
-            Some(path) => read_times(&path, files.len())?,
+            Some(path) => stamps_of(&files, &read_times(&path)?, &path)?,
             None => (0..files.len()).map(|i| i as f64 * period_s).collect(),
         };
         Ok(DirectorySource { files, stamps, next: 0 })
@@ -72,8 +74,8 @@ fn times_file(scan_dir: &Path) -> Option<PathBuf> {
     Some(parent.join("times.txt")).filter(|p| p.is_file())
 }
 
-/// The stamps in `path`, one per non-blank line; there must be exactly one per scan.
-fn read_times(path: &Path, scans: usize) -> Result<Vec<f64>, RecordingErrorKind> {
+/// The stamps in `path`, one per non-blank line.
+fn read_times(path: &Path) -> Result<Vec<f64>, RecordingErrorKind> {
     let text = std::fs::read_to_string(path).map_err(RecordingErrorKind::Io)?;
     let mut stamps = Vec::new();
     for (i, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
@@ -81,8 +83,21 @@ fn read_times(path: &Path, scans: usize) -> Result<Vec<f64>, RecordingErrorKind>
         let syntax = || RecordingErrorKind::TimesSyntax { file: path.to_owned(), line: i + 1, text: line.to_owned() };
         stamps.push(stamp.ok_or_else(syntax)?);
     }
-    if stamps.len() != scans {
-        return Err(RecordingErrorKind::TimesCount { file: path.to_owned(), stamps: stamps.len(), scans });
-    }
     Ok(stamps)
+}
+
+/// Each file's stamp: line `i` for the `i`-th file when there is one line per file; otherwise, when
+/// every file is named by a sequence index (`000123.bin`) within the list, the line of that index.
+fn stamps_of(files: &[PathBuf], times: &[f64], path: &Path) -> Result<Vec<f64>, RecordingErrorKind> {
+    if times.len() == files.len() {
+        return Ok(times.to_vec());
+    }
+    let by_index: Option<Vec<f64>> = files.iter().map(|f| times.get(sequence_index(f)?).copied()).collect();
+    by_index.ok_or_else(|| RecordingErrorKind::TimesCount { file: path.to_owned(), stamps: times.len(), scans: files.len() })
+}
+
+/// The index a KITTI scan file is named by: its stem, all decimal digits.
+fn sequence_index(file: &Path) -> Option<usize> {
+    let stem = file.file_stem()?.to_str()?;
+    stem.bytes().all(|b| b.is_ascii_digit()).then(|| stem.parse().ok()).flatten()
 }

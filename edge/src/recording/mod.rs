@@ -160,7 +160,10 @@ pub enum RecordingErrorKind {
         text: String,
     },
     /// `times.txt` with a different number of stamps than scan files.
-    #[error("{}: {stamps} stamps for {scans} scan files (one line per scan expected)", file.display())]
+    #[error(
+        "{}: {stamps} stamps for {scans} scan files (one line per scan expected, or a line for every index the scan files are named by)",
+        file.display()
+    )]
     TimesCount {
         /// The times file.
         file: PathBuf,
