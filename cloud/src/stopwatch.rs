@@ -41,6 +41,13 @@ impl Stopwatch {
     }
 }
 
+/// `f()` and how long it took: for a stage timed alone, with untimed work around it.
+pub fn timed<T>(f: impl FnOnce() -> T) -> (T, Duration) {
+    let start = Instant::now();
+    let value = f();
+    (value, start.elapsed())
+}
+
 /// A duration in milliseconds, the unit of every timing report.
 pub fn millis(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
@@ -60,5 +67,10 @@ mod tests {
         assert!(first >= Duration::from_millis(2) && second >= Duration::from_millis(2));
         assert!(watch.elapsed() >= first + second);
         assert_eq!(millis(Duration::from_micros(1500)), 1.5);
+        let (value, took) = timed(|| {
+            std::thread::sleep(Duration::from_millis(2));
+            7
+        });
+        assert!(value == 7 && took >= Duration::from_millis(2));
     }
 }

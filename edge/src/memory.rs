@@ -35,6 +35,14 @@ pub fn release_free_memory() {
     }
 }
 
+/// [`release_free_memory`] after every [`RELEASE_EVERY`]-th of `done` scans: what a long run calls
+/// after each scan.
+pub fn release_periodically(done: usize) {
+    if done % RELEASE_EVERY == 0 {
+        release_free_memory();
+    }
+}
+
 /// The process's peak resident memory (Linux `VmHWM`), MB; `None` elsewhere.
 pub fn peak_rss_mb() -> Option<f64> {
     proc_status_mb("VmHWM:")
@@ -88,9 +96,7 @@ impl MemoryWatch {
             self.trace.end = rss_mb();
         }
         // The resident size is read before the trim: between two trims it is at its highest.
-        if done % RELEASE_EVERY == 0 {
-            release_free_memory();
-        }
+        release_periodically(done);
     }
 
     /// The trace; the end is read now if the run ended before the expected count.

@@ -55,8 +55,8 @@ pub mod world;
 pub mod worlds;
 
 pub use export::{ExportError, Written, write_kitti};
-pub use maps::{MapsError, RobotMaps};
 pub use geometry::{Aabb, Cuboid, Cylinder, Hit, Object, Plane, Ray, Shape, Sphere, Triangle};
+pub use maps::{MapsError, RobotMaps};
 pub use scenario::{CATALOG, FRAME_RATE, Scenario, ScenarioInfo, UnknownScenario, scenario_names};
 pub use sensor::{SensorKind, SensorModel, UnknownSensor};
 pub use simulator::{Scan, SimConfig, SimError, Simulator};

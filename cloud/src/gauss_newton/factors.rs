@@ -2,8 +2,8 @@
 
 use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3, Vector6};
 
-use super::normal_equations::{LeverArm, NormalEquations};
 use super::Factor;
+use super::normal_equations::{LeverArm, NormalEquations};
 
 /// A residual `e = n · (T p − q)`: the signed distance of the placed point `p` from a line (through
 /// `q`, `n` ⟂ the line toward the point) or a plane (through `q`, normal `n`).

@@ -68,7 +68,10 @@ pub fn sum_block<F: Factor>(factor: &F, terms: &[F::Term]) -> NormalEquations<F:
 ///
 /// The blocks are the caller's (e.g. `par_chunks(BLOCK)` of several slices chained, or zipped with
 /// an output), so that a block can also search correspondences or record them.
-pub fn sum_blocks<I, S>(blocks: I, sum_block: impl Fn(I::Item) -> NormalEquations<S> + Sync + Send) -> NormalEquations<S>
+pub fn sum_blocks<I, S>(
+    blocks: I,
+    sum_block: impl Fn(I::Item) -> NormalEquations<S> + Sync + Send,
+) -> NormalEquations<S>
 where
     I: IndexedParallelIterator,
     S: Sums,

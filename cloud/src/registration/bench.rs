@@ -2,7 +2,6 @@
 
 use std::fmt;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use nalgebra::{Isometry3, Matrix4};
 
@@ -128,9 +127,9 @@ fn prepare(source: &PointCloud, target: &PointCloud, config: &RegistrationConfig
 fn median_ms(runs: usize, mut f: impl FnMut() -> Result<(), RegistrationError>) -> Result<Timing, RegistrationError> {
     let mut times = Vec::with_capacity(runs);
     for _ in 0..runs {
-        let start = Instant::now();
-        f()?;
-        times.push(start.elapsed().as_secs_f64() * 1e3);
+        let (result, took) = crate::stopwatch::timed(&mut f);
+        result?;
+        times.push(crate::stopwatch::millis(took));
     }
     times.sort_by(f64::total_cmp);
     Ok(Timing { median: times[times.len() / 2], min: times[0] })

@@ -175,7 +175,8 @@ pub(crate) fn evaluate<T: Target, F: Factor>(
     matches: &[u32],
 ) -> f64 {
     let gaussians = PointToGaussian::new(target, factor, pose);
-    let blocks = matches.par_chunks(BLOCK).zip(source.points.par_chunks(BLOCK).zip(source.covariances.par_chunks(BLOCK)));
+    let blocks =
+        matches.par_chunks(BLOCK).zip(source.points.par_chunks(BLOCK).zip(source.covariances.par_chunks(BLOCK)));
     let block_cost = |(matches, (points, covariances)): (&[u32], (&[Vector3<f64>], &[Matrix3<f64>]))| {
         let mut cost = 0.0;
         for ((&target, point), covariance) in matches.iter().zip(points).zip(covariances) {

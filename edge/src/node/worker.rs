@@ -12,7 +12,7 @@ use tokio::sync::mpsc;
 use tracing::{error, warn};
 
 use super::{NodeError, Rate};
-use crate::memory::{RELEASE_EVERY, release_free_memory};
+use crate::memory::release_periodically;
 use crate::odometry::{Keyframe, Odometry};
 use crate::source::{Source, SourceScan};
 use crate::wire;
@@ -66,9 +66,7 @@ impl Worker {
             }
             let registered = self.register(scan)?;
             scans += 1;
-            if scans % RELEASE_EVERY == 0 {
-                release_free_memory();
-            }
+            release_periodically(scans);
             if tx.blocking_send(registered).is_err() {
                 break;
             }

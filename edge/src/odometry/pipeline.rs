@@ -23,8 +23,8 @@ use super::stats::{RunStats, RunSummary};
 use super::{Odometry, OdometryConfig, OdometryError};
 use crate::memory::{MemoryTrace, MemoryWatch, peak_rss_mb};
 use crate::recording::{RecordingOptions, RingModel, Spin, TimeModel};
-use sim::SimConfig;
 use crate::source::{Source, SourceError, SourceScan, SourceSpec};
+use sim::SimConfig;
 
 /// Why a run of the odometry failed.
 #[derive(Debug, thiserror::Error)]

@@ -3,11 +3,11 @@
 //! ([`cloud::gauss_newton`]: the factor, the summation and the solution remapping).
 
 use cloud::eigen3::{SymmetricEigen3, symmetric_eigen3};
-use cloud::moments::mean_covariance;
 use cloud::gauss_newton::{
     BLOCK, LeverArm, NormalEquations, Remapped, SignedDistance, SignedDistanceFactor, solve_remapped, sum_block,
     sum_blocks,
 };
+use cloud::moments::mean_covariance;
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 

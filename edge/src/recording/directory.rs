@@ -93,7 +93,11 @@ fn stamps_of(files: &[PathBuf], times: &[f64], path: &Path) -> Result<Vec<f64>, 
         return Ok(times.to_vec());
     }
     let by_index: Option<Vec<f64>> = files.iter().map(|f| times.get(sequence_index(f)?).copied()).collect();
-    by_index.ok_or_else(|| RecordingErrorKind::TimesCount { file: path.to_owned(), stamps: times.len(), scans: files.len() })
+    by_index.ok_or_else(|| RecordingErrorKind::TimesCount {
+        file: path.to_owned(),
+        stamps: times.len(),
+        scans: files.len(),
+    })
 }
 
 /// The index a KITTI scan file is named by: its stem, all decimal digits.

@@ -124,7 +124,7 @@ fn print_merge(inputs: &[PathBuf], report: &MergeReport, out: &Path) {
         report.maps.len(),
         report.global_map.len(),
         out.join("global_map.ply").display(),
-        report.timing.total.as_secs_f64() * 1e3
+        cloud::stopwatch::millis(report.timing.total)
     );
 }
 

@@ -87,7 +87,7 @@ pub fn transforms_json(inputs: &[PathBuf], report: &MergeReport) -> Value {
             })
         })
         .collect();
-    let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+    let ms = cloud::stopwatch::millis;
     let t = &report.timing;
     json!({
         "maps": maps,

@@ -6,8 +6,8 @@
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
-use std::time::Instant;
 
+use cloud::stopwatch::{Stopwatch, timed};
 use cloud::{Channels, PointCloud};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
@@ -82,26 +82,17 @@ impl Merger {
 
     /// Merges the current revisions of all maps.
     pub fn merge(&mut self) -> Result<MergeReport, MergeError> {
-        let total = Instant::now();
-        let mut timing = MergeTiming::default();
-        let clock = Instant::now();
-        self.prepare_stale();
-        timing.features = clock.elapsed();
+        let watch = Stopwatch::start();
+        let ((), features) = timed(|| self.prepare_stale());
         let ids: Vec<usize> = self.maps.keys().copied().collect();
         let prepared: Vec<Arc<PreparedMap>> =
             self.maps.values().map(|s| Arc::clone(s.prepared.as_ref().expect("all maps are prepared"))).collect();
         let reference = self.reference_position(&ids, &prepared)?;
-        let clock = Instant::now();
-        let pairs = self.estimate_pairs(&ids, &prepared);
-        timing.pairs = clock.elapsed();
-        let clock = Instant::now();
-        let layout = layout(&prepared, &pairs, reference);
-        timing.graph = clock.elapsed();
+        let (pairs, pairs_time) = timed(|| self.estimate_pairs(&ids, &prepared));
+        let (layout, graph) = timed(|| layout(&prepared, &pairs, reference));
         let maps = self.map_reports(&ids, &prepared, &pairs, &layout.chained);
-        let clock = Instant::now();
-        let global_map = assemble(&prepared, &maps, self.config.output_voxel);
-        timing.assemble = clock.elapsed();
-        timing.total = total.elapsed();
+        let (global_map, assemble) = timed(|| assemble(&prepared, &maps, self.config.output_voxel));
+        let timing = MergeTiming { features, pairs: pairs_time, graph, assemble, total: watch.elapsed() };
         Ok(MergeReport { maps, pairs, reference: layout.root, tree: layout.tree, global_map, timing })
     }
 

@@ -10,6 +10,7 @@ use std::time::Duration;
 use cloud::PointCloud;
 use cloud::formats::{FormatError, read_cloud};
 use cloud::se3::{PoseError, from_matrix, pose_error};
+use cloud::stopwatch::timed;
 use nalgebra::{Isometry3, Matrix4};
 
 use super::{PairwiseConfig, PairwiseError, PairwiseOutcome, register};
@@ -58,15 +59,14 @@ pub fn bench_pairwise(
     runs: usize,
     reference: Option<&Isometry3<f64>>,
 ) -> Result<PairwiseBench, PairwiseError> {
-    let timed = || -> Result<(PairwiseOutcome, Duration), PairwiseError> {
-        let clock = std::time::Instant::now();
-        let outcome = register(source, target, config)?;
-        Ok((outcome, clock.elapsed()))
+    let run = || {
+        let (outcome, took) = timed(|| register(source, target, config));
+        outcome.map(|o| (o, took))
     };
-    let (mut outcome, first) = timed()?;
+    let (mut outcome, first) = run()?;
     let mut times = vec![first];
     for _ in 1..runs {
-        let (o, t) = timed()?;
+        let (o, t) = run()?;
         times.push(t);
         outcome = o;
     }
@@ -115,7 +115,7 @@ pub fn read_transform(path: &Path) -> Result<Isometry3<f64>, BenchError> {
 
 impl fmt::Display for PairwiseBench {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        let ms = cloud::stopwatch::millis;
         let mut sorted = self.runs.clone();
         sorted.sort();
         let median = sorted.get(sorted.len() / 2).copied().unwrap_or_default();

@@ -8,7 +8,9 @@
 //! and the caller may still chain VGICP on full-resolution maps. It is skipped when
 //! `iterations = 0`; the unpolished transform is kept next to the polished one.
 
-use cloud::gauss_newton::{BLOCK, Factor, NormalEquations, SignedDistance, SignedDistanceFactor, solve_damped, sum_blocks};
+use cloud::gauss_newton::{
+    BLOCK, Factor, NormalEquations, SignedDistance, SignedDistanceFactor, solve_damped, sum_blocks,
+};
 use cloud::se3;
 use nalgebra::{Isometry3, Point3, Vector6};
 use rayon::prelude::*;

@@ -110,7 +110,7 @@ fn log_report(report: &MergeReport) {
         }
     }
     let t = &report.timing;
-    let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+    let ms = cloud::stopwatch::millis;
     tracing::info!(
         "merge: features {:.0} ms, pairs {:.0} ms, graph {:.0} ms, assembly {:.0} ms",
         ms(t.features),

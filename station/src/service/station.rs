@@ -461,7 +461,7 @@ impl Core {
 
     async fn publish_map(&mut self, outcome: MergeOutcome, publisher: &Publisher<'static>) {
         let MergeOutcome { map, bytes, basis, elapsed } = outcome;
-        let ms = elapsed.as_secs_f64() * 1e3;
+        let ms = cloud::stopwatch::millis(elapsed);
         let merged = map.robots.iter().filter(|r| r.status == proto::MergeStatus::Merged as i32).count();
         info!("global map revision {}: {merged} of {} robots merged ({ms:.0} ms)", map.revision, map.robots.len());
         self.counters.merges += 1;
