@@ -166,15 +166,20 @@ impl NetworkArgs {
     }
 }
 
-/// Logs to stderr: on a terminal progress and info, headless (a robot's service, a pipe) only errors,
-/// unless RUST_LOG says otherwise.
+/// Logs to stderr: on a terminal progress and info, headless (a robot's service, a pipe) warnings
+/// and errors (a skipped scan must be seen in a service's log too), unless RUST_LOG says otherwise.
 pub fn init_logging() {
     use std::io::IsTerminal;
     // zenoh's own info lines (session ids, endpoints, a gossip warning our loopback config causes on
     // purpose) are noise to an operator; RUST_LOG=zenoh=info brings them back.
-    let default = if std::io::stderr().is_terminal() { "info,zenoh=error" } else { "error" };
+    let terminal = std::io::stderr().is_terminal();
+    let default = if terminal { "info,zenoh=error" } else { "warn,zenoh=error" };
+    // An empty RUST_LOG (set but blank, as some shells and CI runners leave it) is no setting, not
+    // "errors only", which is what the filter would make of it.
+    let filter = std::env::var("RUST_LOG").ok().filter(|v| !v.trim().is_empty()).unwrap_or_else(|| default.into());
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default.into()))
+        .with_env_filter(tracing_subscriber::EnvFilter::new(filter))
+        .with_ansi(terminal)
         .with_writer(std::io::stderr)
         .init();
 }

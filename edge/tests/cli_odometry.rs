@@ -102,3 +102,31 @@ fn odometry_errors_name_the_file() {
     let text = stderr(&["odometry", data, "--out", file.to_str().unwrap(), "--max-frames", "1"]);
     assert!(text.contains(&format!("cannot create {}", file.display())), "{text}");
 }
+
+#[test]
+fn a_corrupt_scan_is_skipped_warned_and_counted() {
+    // Four KITTI scans, the third cut to a size that is not a multiple of 16 bytes.
+    let dir = tempfile::tempdir().unwrap();
+    let scans = dir.path().join("velodyne");
+    std::fs::create_dir(&scans).unwrap();
+    for i in 0..4 {
+        let name = format!("{i:06}.bin");
+        let bytes = std::fs::read(kitti00().join("velodyne").join(&name)).unwrap();
+        let keep = if i == 2 { bytes.len() - 5 } else { bytes.len() };
+        std::fs::write(scans.join(&name), &bytes[..keep]).unwrap();
+    }
+    let out = dir.path().join("run");
+    let args = ["odometry", dir.path().to_str().unwrap(), "--out", out.to_str().unwrap(), "--preset", "outdoor"];
+    let run = emr_edge(&args);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    // Not a terminal, and still warned.
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("skipped") && stderr.contains("000002.bin"), "{stderr}");
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
+    assert_eq!(stats["frames"], 3);
+    let skipped = stats["skipped_scans"].as_array().unwrap();
+    assert_eq!(skipped.len(), 1, "{skipped:?}");
+    let reason = skipped[0]["reason"].as_str().unwrap();
+    assert!(reason.contains("000002.bin") && reason.contains("multiple of 16"), "{reason}");
+}

@@ -51,7 +51,7 @@ fn run(degeneracy_ratio: f64) -> (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>, usiz
     let (mut gt, mut est, mut degenerate) = (Vec::new(), Vec::new(), 0);
     for f in 0..sim.frames() {
         let scan = sim.scan(f);
-        let frame = odometry.register(&scan.cloud).unwrap();
+        let frame = odometry.register(&scan.cloud, scan.stamp).unwrap();
         degenerate += usize::from(frame.degenerate);
         gt.push(first * scan.ground_truth);
         est.push(frame.pose);

@@ -27,7 +27,7 @@ fn kitti00_first_16_frames_within_5_cm_ate() {
     let mut poses = Vec::new();
     for scan in open(&data().join("velodyne"), &options).unwrap() {
         let scan = scan.unwrap();
-        poses.push(odometry.register(&scan.cloud).unwrap().pose);
+        poses.push(odometry.register(&scan.cloud, scan.stamp).unwrap().pose);
     }
     let gt = Trajectory::parse_kitti(&std::fs::read_to_string(data().join("poses_velodyne.txt")).unwrap()).unwrap();
     assert_eq!(poses.len(), gt.poses.len());
@@ -51,7 +51,13 @@ fn the_pipeline_writes_the_poses_the_odometry_estimates() {
     let options = pipeline::recording_options(None, &config);
     let mut odometry = Odometry::new(config.clone()).unwrap();
     let by_hand = Trajectory {
-        poses: open(&data(), &options).unwrap().map(|s| odometry.register(&s.unwrap().cloud).unwrap().pose).collect(),
+        poses: open(&data(), &options)
+            .unwrap()
+            .map(|s| {
+                let s = s.unwrap();
+                odometry.register(&s.cloud, s.stamp).unwrap().pose
+            })
+            .collect(),
         stamps: None,
     };
     let out = tempfile::tempdir().unwrap();

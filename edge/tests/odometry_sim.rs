@@ -18,7 +18,7 @@ fn run_with(frames: usize, config: OdometryConfig) -> (Vec<Isometry3<f64>>, Vec<
     (0..frames)
         .map(|f| {
             let scan = sim.scan(f);
-            (first * scan.ground_truth, odometry.register(&scan.cloud).unwrap().pose)
+            (first * scan.ground_truth, odometry.register(&scan.cloud, scan.stamp).unwrap().pose)
         })
         .unzip()
 }

@@ -90,8 +90,10 @@ impl Worker {
 
     /// Odometry on one scan, and its keyframe's message if it made one.
     fn register(&mut self, scan: SourceScan) -> Result<Registered, NodeError> {
-        let frame =
-            self.odometry.register(&scan.cloud).map_err(|source| NodeError::Odometry { index: scan.index, source })?;
+        let frame = self
+            .odometry
+            .register(&scan.cloud, scan.stamp)
+            .map_err(|source| NodeError::Odometry { index: scan.index, source })?;
         let keyframe = frame.keyframe.map(|kf| self.encode(&kf, scan.stamp)).transpose()?;
         Ok(Registered { pose: frame.pose, stamp: scan.stamp, ground_truth: scan.ground_truth, keyframe })
     }

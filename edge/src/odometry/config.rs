@@ -7,6 +7,10 @@
 use cloud::Preset;
 use serde::{Deserialize, Serialize};
 
+pub use super::coarse::CoarseConfig;
+pub use super::health::HealthConfig;
+pub use super::motion_model::MotionModelConfig;
+
 /// Feature extraction parameters (F-LOAM's reference values unless noted).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
@@ -214,6 +218,12 @@ pub struct OdometryConfig {
     pub solver: SolverConfig,
     /// Keyframe selection.
     pub keyframes: KeyframeConfig,
+    /// How far the constant-velocity prediction is trusted.
+    pub motion_model: MotionModelConfig,
+    /// The coarse alignment used where it is not.
+    pub coarse: CoarseConfig,
+    /// When a fit is judged failed, and what is tried then.
+    pub health: HealthConfig,
     /// Distortion compensation on (both stages). Off only to measure what it buys. Default on.
     pub deskew: bool,
     /// Stage-1 compensations per scan at most. Stage 1 assumes the last sweep's motion (eq. 2);
@@ -279,6 +289,9 @@ impl OdometryConfig {
             },
             solver: SolverConfig { min_line_elevation_deg: 60.0, plane_gate: 3.0, ..SolverConfig::default() },
             keyframes: KeyframeConfig::default(),
+            motion_model: MotionModelConfig::default(),
+            coarse: CoarseConfig::default(),
+            health: HealthConfig::default(),
             deskew: true,
             deskew_rounds: 3,
             deskew_tolerance: 0.03,

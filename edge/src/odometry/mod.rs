@@ -16,10 +16,13 @@
 //! Poses are those of the sensor at the END of each sweep, in the odometry frame (the sensor frame at
 //! the end of the first sweep).
 
+pub mod coarse;
 pub mod config;
 pub mod deskew;
 pub mod features;
+pub mod health;
 pub mod local_map;
+pub mod motion_model;
 pub mod pipeline;
 pub mod solver;
 pub mod stats;
@@ -32,7 +35,9 @@ use serde::Serialize;
 pub use config::{FeatureConfig, KeyframeConfig, MapConfig, OdometryConfig, SolverConfig};
 use deskew::SweepMotion;
 use features::{FeatureError, Features};
+use health::Health;
 use local_map::{FeatureMap, MAX_POINTS_PER_VOXEL, ScanLine};
+use motion_model::MotionModel;
 
 /// A keyframe: the deskewed, downsampled scan at its pose.
 #[derive(Clone, Debug)]
@@ -63,6 +68,12 @@ pub struct Frame {
     /// Smallest eigenvalue of the pose problem's normal matrix over the sum of weights (1 for the
     /// first scan): how well the worst direction is constrained.
     pub conditioning: f64,
+    /// Where the feature fit started: the prediction, or a coarse or global alignment when the
+    /// prediction's fit was suspect or had no measured velocity behind it.
+    pub start: Start,
+    /// True when even the best fit matched too few features to trust: the scan's features were
+    /// kept out of the map and the next scan re-localises.
+    pub lost: bool,
     /// The keyframe this scan made, if any.
     pub keyframe: Option<Keyframe>,
     /// Where the time went.
@@ -78,6 +89,66 @@ pub struct FrameTimings {
     pub registration: f64,
     /// Map insertion, crop and k-d tree rebuild, keyframe.
     pub map: f64,
+}
+
+/// Where the feature fit that gave a scan's pose started.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Start {
+    /// The constant-velocity prediction (eq. 2): the usual case.
+    #[default]
+    Prediction,
+    /// A coarse alignment ([`coarse`]) from the prediction.
+    Coarse,
+    /// A global re-localisation against the local map, without a guess.
+    Global,
+}
+
+/// Where a scan was found, and from what.
+struct Located {
+    /// The fine fit.
+    estimate: solver::Estimate,
+    /// The constant-velocity prediction.
+    predicted: Isometry3<f64>,
+    /// Where the fine fit started.
+    start: Start,
+    /// True when even the best fit is suspect.
+    lost: bool,
+}
+
+/// How many more features (as a fraction) a fit from another start must match to replace the
+/// prediction's: where the scene leaves a direction unconstrained (a corridor) fits slid along it
+/// match about as many, and the prediction is the better guess there.
+const RECOVERY_MARGIN: f64 = 0.1;
+
+/// Two fits are the same pose when they place a point [`SAME_FIT_RANGE_M`] away within this (m):
+/// well above a converged fit's jitter (millimetres), well below a wrong basin (decimetres up).
+const SAME_FIT_M: f64 = 0.02;
+/// See [`SAME_FIT_M`].
+const SAME_FIT_RANGE_M: f64 = 10.0;
+
+impl Located {
+    /// Takes `estimate` (started from `start`) when it found another pose than the current fit
+    /// and matches more features, by `margin` (a fraction) at least. Two starts that converged to
+    /// the same pose differ in a feature or two by chance; the prediction's fit is kept then.
+    fn keep_better(&mut self, estimate: solver::Estimate, start: Start, margin: f64) {
+        let apart = motion_model::displacement(&(self.estimate.pose.inverse() * estimate.pose), SAME_FIT_RANGE_M);
+        if apart > SAME_FIT_M && matches(&estimate) as f64 > (1.0 + margin) * matches(&self.estimate) as f64 {
+            self.estimate = estimate;
+            self.start = start;
+        }
+    }
+}
+
+/// Correspondences of a fit's last search: the better a pose, the more features find their line
+/// or plane within the neighbour radius.
+fn matches(estimate: &solver::Estimate) -> usize {
+    estimate.edge_matches + estimate.plane_matches
+}
+
+/// The share of a scan's features a fit matched.
+fn share(estimate: &solver::Estimate, raw: &Features) -> f64 {
+    matches(estimate) as f64 / (raw.edges.len() + raw.planes.len()).max(1) as f64
 }
 
 /// Why a scan could not be registered.
@@ -96,11 +167,22 @@ pub struct Odometry {
     config: OdometryConfig,
     frames: usize,
     pose: Isometry3<f64>,
+    /// The motion over one sweep, from the last two scans (eq. 2).
     motion: SweepMotion,
+    /// Stamp of the last scan, seconds.
+    stamp: f64,
+    /// Sweeps between the last scan and this one (1 unless scans were dropped).
+    sweeps: f64,
     edge_map: FeatureMap,
     plane_map: FeatureMap,
     last_keyframe: Option<Isometry3<f64>>,
     keyframes: u64,
+    model: MotionModel,
+    health: Health,
+    /// Scans registered since the start or the last reset of the motion model.
+    since_reset: usize,
+    /// The first scan's features, until the second scan measured the motion they were taken in.
+    first: Option<Features>,
 }
 
 impl Odometry {
@@ -128,12 +210,18 @@ impl Odometry {
         Ok(Odometry {
             edge_map: FeatureMap::new(config.edge_map.clone()),
             plane_map: FeatureMap::new(config.plane_map.clone()),
-            config,
             frames: 0,
             pose: Isometry3::identity(),
             motion: SweepMotion::zero(),
+            stamp: 0.0,
+            sweeps: 1.0,
             last_keyframe: None,
             keyframes: 0,
+            model: MotionModel::new(config.motion_model.clone()),
+            health: Health::new(config.health.clone()),
+            since_reset: 0,
+            first: None,
+            config,
         })
     }
 
@@ -142,12 +230,31 @@ impl Odometry {
         &self.config
     }
 
-    /// Registers one scan (with ring and per-point time channels) and returns its pose.
-    pub fn register(&mut self, scan: &PointCloud) -> Result<Frame, OdometryError> {
+    /// Registers one scan (with ring and per-point time channels) swept from `stamp` (seconds)
+    /// and returns its pose.
+    pub fn register(&mut self, scan: &PointCloud, stamp: f64) -> Result<Frame, OdometryError> {
+        self.advance_clock(stamp);
         // The stages' parallel loops hand their work to rayon's pool and wait for it: called from
         // a thread outside the pool, each loop costs a worker's wake-up and a hand-over back, a
         // dozen per scan. Run on a worker, the scan pays for one.
         rayon::scope(|_| self.register_on_pool(scan))
+    }
+
+    /// How many sweeps passed since the last scan: the sensor spins at a fixed rate, so the gap
+    /// between two stamps is a whole number of sweeps (more than one where scans were dropped or
+    /// thinned out); after a gap of [`MotionModelConfig::gap_s`] the prediction is not trusted.
+    fn advance_clock(&mut self, stamp: f64) {
+        let elapsed = stamp - self.stamp;
+        let period = f64::from(self.config.scan_period);
+        self.sweeps = if self.frames > 0 && elapsed.is_finite() { (elapsed / period).round().max(1.0) } else { 1.0 };
+        if self.frames > 0 && self.model.is_gap(self.stamp, stamp) {
+            // The velocity is stale: predict one sweep of it and align coarse to fine, as for the
+            // scan after the first.
+            self.model.reset();
+            self.sweeps = 1.0;
+            self.since_reset = 1;
+        }
+        self.stamp = stamp;
     }
 
     /// [`Odometry::register`] on a worker of rayon's pool.
@@ -155,27 +262,46 @@ impl Odometry {
         let mut watch = Stopwatch::start();
         let raw = features::extract(scan, self.config.scan_period, &self.config.features)?;
         let features_ms = watch.lap_ms();
-        let estimate = self.locate(&raw);
+        let mut located = self.locate(&raw);
+        if let Some(first) = self.first.take() {
+            located.estimate = self.recompensate_first(&first, &raw, located.estimate);
+        }
         let registration_ms = watch.lap_ms();
-        let keyframe = self.update_map(scan, &raw, estimate.pose);
+        let estimate = &located.estimate;
+        tracing::debug!(
+            frame = self.frames,
+            sigma = self.model.sigma(),
+            start = ?located.start,
+            lost = located.lost,
+            correction = motion_model::displacement(&(located.predicted.inverse() * estimate.pose), 50.0),
+            matched = (estimate.edge_matches + estimate.plane_matches) as f64
+                / (raw.edges.len() + raw.planes.len()).max(1) as f64,
+            iterations = estimate.iterations,
+            "located"
+        );
+        let keyframe = if located.lost { self.skip(located.estimate.pose) } else { self.accept(scan, &raw, &located) };
         let timings = FrameTimings { features: features_ms, registration: registration_ms, map: watch.lap_ms() };
         Ok(Frame {
             timings,
             pose: self.pose,
             edges: raw.edges.len(),
             planes: raw.planes.len(),
-            iterations: estimate.iterations,
-            degenerate: estimate.degenerate_directions > 0,
-            conditioning: estimate.min_eigen_ratio,
+            iterations: located.estimate.iterations,
+            degenerate: located.estimate.degenerate_directions > 0,
+            conditioning: located.estimate.min_eigen_ratio,
+            start: located.start,
+            lost: located.lost,
             keyframe,
         })
     }
 
-    /// Stage 1 and the pose, from the constant-velocity prediction (eq. 2); the first scan defines
-    /// the odometry frame.
-    fn locate(&self, raw: &Features) -> solver::Estimate {
+    /// Stage 1 and the pose, from the constant-velocity prediction (eq. 2); where that fit is
+    /// suspect or the prediction has nothing behind it, also from a coarse alignment and, failing
+    /// that, from a global re-localisation: each start is refined by the feature fit and the fit
+    /// matching the most features wins. The first scan defines the odometry frame.
+    fn locate(&self, raw: &Features) -> Located {
         if self.frames == 0 {
-            return solver::Estimate {
+            let estimate = solver::Estimate {
                 pose: Isometry3::identity(),
                 iterations: 0,
                 edge_matches: 0,
@@ -183,9 +309,86 @@ impl Odometry {
                 degenerate_directions: 0,
                 min_eigen_ratio: 1.0,
             };
+            return Located { estimate, predicted: Isometry3::identity(), start: Start::Prediction, lost: false };
         }
-        let predicted = self.pose * cloud::se3::exp(&self.motion.0);
-        self.estimate(raw, predicted)
+        let predicted = self.pose * cloud::se3::exp(&(self.motion.0 * self.sweeps));
+        let mut best =
+            Located { estimate: self.estimate(raw, predicted), predicted, start: Start::Prediction, lost: false };
+        // Without a measured velocity (the second scan, after a gap or a lost scan) every start
+        // is tried: there is no history to judge the prediction's fit against.
+        let untrusted = self.since_reset < 2;
+        // A degenerate fit matches few features by nature (a corridor), and another start could
+        // only slide along the direction the prior holds.
+        let degenerate = best.estimate.degenerate_directions > 0;
+        if !untrusted && (degenerate || !self.health.is_suspect(share(&best.estimate, raw))) {
+            return best;
+        }
+        // Against a guess of no motion, any start that matches more features is better.
+        let margin = if untrusted { 0.0 } else { RECOVERY_MARGIN };
+        // The coarse alignment's basin is wide but its voxels are blunt: along a street it can
+        // settle a metre off where the prediction was right, hence the comparison.
+        if let Some(start) = self.coarse(raw, &predicted) {
+            best.keep_better(self.estimate(raw, start), Start::Coarse, margin);
+        }
+        let still_suspect = untrusted || self.health.is_suspect(share(&best.estimate, raw));
+        if still_suspect
+            && self.health.config().relocalise
+            && let Some(start) = self.relocalise(raw)
+        {
+            best.keep_better(self.estimate(raw, start), Start::Global, margin);
+        }
+        best.lost = self.health.is_suspect(share(&best.estimate, raw));
+        best
+    }
+
+    /// The scan's features aligned coarse to fine to the local maps' points from `predicted`,
+    /// reaching as far as the prediction's recent errors (3σ, the adaptive gate).
+    fn coarse(&self, raw: &Features, predicted: &Isometry3<f64>) -> Option<Isometry3<f64>> {
+        let features = self.compensated(raw);
+        let map = self.map_points();
+        let config = self.config.coarse.reaching(3.0 * self.model.sigma());
+        coarse::align(&features, &map, predicted, &config)
+    }
+
+    /// The scan's features placed in the map without a guess (global registration).
+    fn relocalise(&self, _raw: &Features) -> Option<Isometry3<f64>> {
+        None
+    }
+
+    /// Edges and planes compensated with the predicted sweep motion (stage 1).
+    fn compensated(&self, raw: &Features) -> Vec<features::Feature> {
+        let mut features = deskew::compensate(&raw.edges, &self.motion);
+        features.extend(deskew::compensate(&raw.planes, &self.motion));
+        features
+    }
+
+    /// The points of both local maps.
+    fn map_points(&self) -> Vec<Point3<f32>> {
+        let mut map = self.edge_map.points().to_vec();
+        map.extend_from_slice(self.plane_map.points());
+        map
+    }
+
+    /// The first scan entered the maps uncompensated: nothing was known of the motion it was taken
+    /// in. A run that starts moving (a recording cut mid-drive, a robot turning) would keep that
+    /// distortion in the map's frame; once the second scan measured the motion, the maps are made
+    /// again from the first scan's features compensated with it and the second scan is fitted
+    /// again.
+    /// A start from rest (within [`OdometryConfig::deskew_tolerance`]) leaves the maps as they are.
+    fn recompensate_first(&mut self, first: &Features, raw: &Features, fit: solver::Estimate) -> solver::Estimate {
+        let pose = fit.pose;
+        let motion = SweepMotion(SweepMotion::between(&Isometry3::identity(), &pose).0 / self.sweeps);
+        if motion.difference_at(&SweepMotion::zero(), 10.0) <= self.config.deskew_tolerance {
+            return fit;
+        }
+        self.edge_map = FeatureMap::new(self.config.edge_map.clone());
+        self.plane_map = FeatureMap::new(self.config.plane_map.clone());
+        let placed = |f: &features::Feature| (motion.compensate(&f.point, f.phase), ScanLine::new(0, f.ring));
+        self.edge_map.insert(first.edges.iter().map(placed), &Isometry3::identity());
+        self.plane_map.insert(first.planes.iter().map(placed), &Isometry3::identity());
+        self.edge_map.crop_and_rebuild(&Point3::origin());
+        self.plane_map.crop_and_rebuild(&Point3::origin());
+        self.estimate(raw, pose)
     }
 
     /// Stage 2 and the local map: the sweep's motion is re-estimated from the new pose, corrects
@@ -193,7 +396,11 @@ impl Odometry {
     fn update_map(&mut self, scan: &PointCloud, raw: &Features, pose: Isometry3<f64>) -> Option<Keyframe> {
         let previous = self.pose;
         self.pose = pose;
-        self.motion = if self.frames == 0 { SweepMotion::zero() } else { SweepMotion::between(&previous, &self.pose) };
+        self.motion = if self.frames == 0 {
+            SweepMotion::zero()
+        } else {
+            SweepMotion(SweepMotion::between(&previous, &self.pose).0 / self.sweeps)
+        };
         let corrected = if self.config.deskew { self.motion } else { SweepMotion::zero() };
         let index = self.frames;
         let placed = |f: &features::Feature| (corrected.compensate(&f.point, f.phase), ScanLine::new(index, f.ring));
@@ -203,8 +410,34 @@ impl Odometry {
         self.edge_map.crop_and_rebuild(&centre);
         self.plane_map.crop_and_rebuild(&centre);
         let keyframe = self.keyframe(scan, &corrected);
+        if self.frames == 0 && self.config.deskew {
+            self.first = Some(raw.clone());
+        }
         self.frames += 1;
+        self.since_reset += 1;
         keyframe
+    }
+
+    /// A fit judged good: the motion model and the health history learn from it, and the scan
+    /// enters the map.
+    fn accept(&mut self, scan: &PointCloud, raw: &Features, located: &Located) -> Option<Keyframe> {
+        let pose = located.estimate.pose;
+        // The scan after the first (or after a reset) was predicted without a measured velocity:
+        // its error says nothing about the prediction.
+        if self.since_reset >= 2 {
+            self.model.observe(&located.predicted, &pose, &(self.pose.inverse() * pose));
+        }
+        self.health.accept(share(&located.estimate, raw));
+        self.update_map(scan, raw, pose)
+    }
+
+    /// A lost scan: its best pose is reported, but its features stay out of the map (they would
+    /// corrupt it), the velocity is kept, and the next scan is located from every start.
+    fn skip(&mut self, pose: Isometry3<f64>) -> Option<Keyframe> {
+        self.pose = pose;
+        self.frames += 1;
+        self.since_reset = 1;
+        None
     }
 
     /// Stage 1 and the pose (eq. 4): the features compensated with the predicted motion, then, while
@@ -224,7 +457,7 @@ impl Odometry {
         let mut motion = self.motion;
         let mut estimate = solve(&motion, predicted);
         for _ in 1..self.config.deskew_rounds {
-            let mut measured = SweepMotion::between(&self.pose, &estimate.pose);
+            let mut measured = SweepMotion(SweepMotion::between(&self.pose, &estimate.pose).0 / self.sweeps);
             measured.0.fixed_rows_mut::<3>(0).copy_from(&motion.0.fixed_rows::<3>(0));
             if motion.difference_at(&measured, 10.0) <= self.config.deskew_tolerance {
                 break;

@@ -118,17 +118,30 @@ pub fn open(
     Source::open(input, max_frames, &SimConfig::default(), &recording_options(topic, config))
 }
 
-/// The scans of a source under the error policy: undecodable scans skipped with a warning,
-/// reading stopped at damage, which [`Scans::finish`] reports.
+/// The scans of a source under the error policy: undecodable scans skipped with a warning (and
+/// listed, [`Scans::skipped`]), reading stopped at damage, which [`Scans::finish`] reports.
 pub struct Scans {
     source: Source,
     damage: Option<SourceError>,
+    skipped: Vec<SkippedScan>,
+}
+
+/// A scan the source gave but could not decode.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct SkippedScan {
+    /// What went wrong, naming the file or message.
+    pub reason: String,
 }
 
 impl Scans {
     /// The scans of `source`.
     pub fn new(source: Source) -> Self {
-        Scans { source, damage: None }
+        Scans { source, damage: None, skipped: Vec::new() }
+    }
+
+    /// The scans skipped so far, in order.
+    pub fn skipped(&self) -> &[SkippedScan] {
+        &self.skipped
     }
 
     /// The damage that stopped the reading, as an error.
@@ -147,7 +160,10 @@ impl Iterator for Scans {
         loop {
             match self.source.next()? {
                 Ok(scan) => return Some(scan),
-                Err(e) if !e.is_fatal() => tracing::warn!("skipped: {e}"),
+                Err(e) if !e.is_fatal() => {
+                    tracing::warn!("skipped: {e}");
+                    self.skipped.push(SkippedScan { reason: e.to_string() });
+                }
                 Err(e) => {
                     self.damage = Some(e);
                     return None;
@@ -206,8 +222,9 @@ pub fn register<S: Borrow<SourceScan>>(
     for scan in scans {
         let scan = scan.borrow();
         let (watch, cpu) = (Stopwatch::start(), thread_cpu_ms());
-        let frame =
-            odometry.register(&scan.cloud).map_err(|source| PipelineError::Register { scan: scan.index, source })?;
+        let frame = odometry
+            .register(&scan.cloud, scan.stamp)
+            .map_err(|source| PipelineError::Register { scan: scan.index, source })?;
         pass.stats.add(&frame, watch.elapsed_ms());
         pass.cpu_ms.push(thread_cpu_ms() - cpu);
         pass.estimate.poses.push(frame.pose);
@@ -268,6 +285,8 @@ pub struct OdometryReport {
     /// Length of the true path, when the source has ground truth.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub path_length_m: Option<f64>,
+    /// Scans the source gave but could not be decoded, each with its file and reason.
+    pub skipped_scans: Vec<SkippedScan>,
 }
 
 impl OdometryReport {
@@ -325,6 +344,7 @@ impl OdometryPipeline {
             rss_mb,
             ate_rmse_m: accuracy.as_ref().map(|a| a.ate),
             path_length_m: accuracy.as_ref().map(|a| a.path_length_m),
+            skipped_scans: scans.skipped().to_vec(),
         };
         if let Some(accuracy) = &accuracy {
             write(&self.out.join("poses_gt_kitti.txt"), &accuracy.truth.to_kitti())?;

@@ -67,6 +67,18 @@ pub struct RunStats {
     degenerate: usize,
     keyframes: usize,
     conditioning: Vec<f64>,
+    recoveries: Recoveries,
+}
+
+/// How often the prediction's fit was not the one kept, and how often no fit could be trusted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct Recoveries {
+    /// Scans whose pose came from a coarse alignment (the second scan, after gaps, suspect fits).
+    pub coarse: usize,
+    /// Scans whose pose came from a global re-localisation.
+    pub global: usize,
+    /// Scans judged lost: even the best fit matched too few features; kept out of the map.
+    pub lost: usize,
 }
 
 /// The summary written as `stats.json`.
@@ -93,6 +105,8 @@ pub struct RunSummary {
     pub conditioning: Low,
     /// Keyframes made.
     pub keyframes: usize,
+    /// Scans located from another start than the prediction, and scans judged lost.
+    pub recoveries: Recoveries,
 }
 
 impl RunStats {
@@ -107,6 +121,9 @@ impl RunStats {
         self.planes.push(frame.planes as f64);
         self.degenerate += usize::from(frame.degenerate);
         self.keyframes += usize::from(frame.keyframe.is_some());
+        self.recoveries.coarse += usize::from(frame.start == super::Start::Coarse);
+        self.recoveries.global += usize::from(frame.start == super::Start::Global);
+        self.recoveries.lost += usize::from(frame.lost);
         if self.ms.len() > 1 {
             self.conditioning.push(frame.conditioning);
         }
@@ -135,6 +152,7 @@ impl RunStats {
             degenerate_frames: self.degenerate,
             conditioning: Low::of(&self.conditioning),
             keyframes: self.keyframes,
+            recoveries: self.recoveries,
         }
     }
 }
