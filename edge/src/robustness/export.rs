@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use cloud::formats::{FileFormat, FormatError, write_cloud};
 use cloud::trajectory::Trajectory;
+use nalgebra::Isometry3;
 
 use super::case::Case;
 
@@ -17,6 +18,14 @@ pub enum ExportError {
     /// A scan file could not be written.
     #[error(transparent)]
     Scan(#[from] FormatError),
+}
+
+/// Writes `poses` (odometry frame) as DIR/poses_kitti.txt, creating DIR.
+pub fn write_poses(poses: &[Isometry3<f64>], dir: &Path) -> Result<(), ExportError> {
+    std::fs::create_dir_all(dir).map_err(|source| ExportError::Io { path: dir.to_owned(), source })?;
+    let path = dir.join("poses_kitti.txt");
+    let text = Trajectory { poses: poses.to_vec(), stamps: None }.to_kitti();
+    std::fs::write(&path, text).map_err(|source| ExportError::Io { path, source })
 }
 
 /// Writes `case` under `dir`: DIR/velodyne/NNNNNN.bin (x y z intensity, float32, the points in the

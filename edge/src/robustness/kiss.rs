@@ -93,6 +93,7 @@ pub fn run_kiss(kiss: &KissConfig, case: &Case, scans: &Path, criterion: &HoldCr
             ms_per_scan: run.ms_per_scan,
             lost: None,
             recoveries: None,
+            poses: run.poses.poses,
         },
         Err(e) => Outcome::failed(chain(&e)),
     }

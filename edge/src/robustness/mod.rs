@@ -34,8 +34,9 @@ pub struct RunOptions {
     pub criterion: HoldCriterion,
     /// KISS-ICP beside ours, when set.
     pub kiss: Option<KissConfig>,
-    /// Each case's scans are written to OUT/NAME in the KITTI layout (KISS-ICP's results in
-    /// OUT/NAME/kiss), when set; KISS-ICP needs it.
+    /// Each case's scans are written to OUT/NAME in the KITTI layout, our poses to
+    /// OUT/NAME/ours/poses_kitti.txt and KISS-ICP's results to OUT/NAME/kiss, when set; KISS-ICP
+    /// needs it.
     pub out: Option<PathBuf>,
 }
 
@@ -59,6 +60,11 @@ pub fn run_case(planned: &Planned, options: &RunOptions) -> Row {
         return failed(run::chain(&e));
     }
     let ours = run_ours(&case, &options.criterion);
+    if let Some(dir) = &written
+        && let Err(e) = export::write_poses(&ours.poses, &dir.join("ours"))
+    {
+        tracing::warn!("{}", run::chain(&e));
+    }
     let kiss = match (&options.kiss, &written) {
         (Some(kiss), Some(dir)) => Some(kiss::run_kiss(kiss, &case, dir, &options.criterion)),
         _ => None,

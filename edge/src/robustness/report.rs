@@ -101,7 +101,7 @@ mod tests {
             final_rotation_deg: 0.2,
             held: true,
         };
-        let kiss = Outcome { verdict: Ok(verdict), ms_per_scan: Some(36.0), lost: None, recoveries: None };
+        let kiss = Outcome { verdict: Ok(verdict), ms_per_scan: Some(36.0), ..Outcome::failed(String::new()) };
         let rows = [Row {
             name: "a".into(),
             class: "shuffled".into(),

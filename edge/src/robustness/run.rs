@@ -99,12 +99,14 @@ pub struct Outcome {
     pub lost: Option<usize>,
     /// Times the odometry recovered from being lost. None until our odometry counts them.
     pub recoveries: Option<usize>,
+    /// The estimated poses (odometry frame), empty when it did not run.
+    pub poses: Vec<Isometry3<f64>>,
 }
 
 impl Outcome {
     /// A run that produced no trajectory.
     pub fn failed(reason: String) -> Self {
-        Outcome { verdict: Err(reason), ms_per_scan: None, lost: None, recoveries: None }
+        Outcome { verdict: Err(reason), ms_per_scan: None, lost: None, recoveries: None, poses: Vec::new() }
     }
 }
 
@@ -129,7 +131,8 @@ pub fn run_ours(case: &Case, criterion: &HoldCriterion) -> Outcome {
     };
     let verdict = judge(&case.truth(), &pass.estimate.poses, criterion).map_err(|e| chain(&e));
     // lost and recoveries: from the odometry's stats once it counts them (issue 13).
-    Outcome { verdict, ms_per_scan: Some(pass.stats.summary().ms_per_frame.median), lost: None, recoveries: None }
+    let ms_per_scan = Some(pass.stats.summary().ms_per_frame.median);
+    Outcome { verdict, ms_per_scan, lost: None, recoveries: None, poses: pass.estimate.poses }
 }
 
 /// An error and its sources, `outer: inner: ...`.

@@ -22,8 +22,8 @@ pub struct RobustnessArgs {
     #[arg(long = "case")]
     case: Option<String>,
     /// Keep each case's scans here as OUT/NAME (KITTI layout: velodyne/NNNNNN.bin, poses.txt,
-    /// times.txt) with KISS-ICP's results in OUT/NAME/kiss [default: a temporary directory,
-    /// removed case by case].
+    /// times.txt), our poses in OUT/NAME/ours and KISS-ICP's in OUT/NAME/kiss [default: a
+    /// temporary directory, removed case by case].
     #[arg(long)]
     out: Option<PathBuf>,
     /// The KITTI sequence directory (velodyne/, times.txt, poses_velodyne.txt).
