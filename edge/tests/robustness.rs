@@ -198,3 +198,26 @@ fn the_matrix_names_every_case_once_and_quick_is_a_subset() {
         assert!(full.iter().any(|p| p.class == class), "{class}");
     }
 }
+
+fn emr_edge(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_emr-edge")).args(args).output().unwrap()
+}
+
+#[test]
+fn the_command_prints_a_row_per_chosen_case_and_refuses_an_unknown_one() {
+    let data = kitti();
+    let data = data.to_str().unwrap();
+    let run = emr_edge(&["bench", "robustness", "--no-kiss", "--case", "from-5-every-5", "--data", data]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let table = String::from_utf8(run.stdout).unwrap();
+    let lines: Vec<&str> = table.lines().collect();
+    assert_eq!(lines.len(), 3, "{table}");
+    assert!(lines[0].starts_with("| case | class | scans | path m | ours ATE m | ours held | lost | recoveries |"));
+    let cells: Vec<&str> = lines[2].split('|').map(str::trim).collect();
+    assert_eq!(&cells[1..4], ["kitti00-from-5-every-5", "every-k", "3"]);
+    assert_eq!(&cells[7..11], ["-", "-", "-", "-"], "no lost/recoveries counts, no KISS-ICP: {}", lines[2]);
+    assert!(String::from_utf8_lossy(&run.stderr).contains("[1/1] kitti00-from-5-every-5"));
+    let none = emr_edge(&["bench", "robustness", "--no-kiss", "--case", "no-such-case", "--data", data]);
+    assert!(!none.status.success());
+    assert!(String::from_utf8_lossy(&none.stderr).contains("no case matches \"no-such-case\""));
+}

@@ -62,7 +62,7 @@ pub fn robustness(args: RobustnessArgs) -> Result<()> {
     if args.out.is_none() {
         let _ = std::fs::remove_dir(&out);
     }
-    println!("{}", Table(&rows));
+    print!("{}", Table(&rows));
     Ok(())
 }
 
