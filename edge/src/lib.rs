@@ -4,5 +4,6 @@ pub mod memory;
 pub mod node;
 pub mod odometry;
 pub mod recording;
+pub mod robustness;
 pub mod source;
 pub mod wire;

@@ -4,7 +4,8 @@
 //! A [`World`] is a set of analytic primitives (boxes, optionally turned about the vertical,
 //! vertical cylinders, spheres, triangles, unbounded planes) with a binned-SAH [`bvh`] for ray
 //! casting. A [`Scenario`] puts robots on smooth [`Trajectory`]s through a world; a [`Simulator`]
-//! turns one robot's motion into LiDAR sweeps.
+//! turns one robot's motion into LiDAR sweeps, or, [`spinning`](Simulator::spinning), a robot
+//! turning in place ([`SpinInPlace`]).
 //!
 //! ```no_run
 //! use sim::{Scenario, SimConfig, Simulator};
@@ -49,6 +50,7 @@ pub mod noise;
 pub mod scenario;
 pub mod sensor;
 pub mod simulator;
+pub mod spin;
 pub mod svg;
 pub mod trajectory;
 pub mod world;
@@ -60,5 +62,6 @@ pub use maps::{MapsError, RobotMaps};
 pub use scenario::{CATALOG, FRAME_RATE, Scenario, ScenarioInfo, UnknownScenario, scenario_names};
 pub use sensor::{SensorKind, SensorModel, UnknownSensor};
 pub use simulator::{Scan, SimConfig, SimError, Simulator};
+pub use spin::SpinInPlace;
 pub use trajectory::{Trajectory, TrajectoryConfig, TrajectoryError};
 pub use world::{Terrain, Wave, World, WorldHit};

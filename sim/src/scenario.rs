@@ -15,7 +15,7 @@
 
 use std::sync::Arc;
 
-use crate::trajectory::Trajectory;
+use crate::trajectory::{Trajectory, TrajectoryError};
 use crate::world::World;
 use crate::worlds::{aisles, campus, warehouse};
 
@@ -105,6 +105,15 @@ impl Scenario {
             }
         };
         Ok(Scenario::new(info.name, info.description, Arc::new(world), robots))
+    }
+
+    /// `campus-car`: the campus world with one car driving its roads at `speed` m/s (see
+    /// [`campus::car`]); an invalid speed is a [`TrajectoryError`].
+    pub fn campus_car(speed: f64) -> Result<Scenario, TrajectoryError> {
+        let world = campus::world();
+        let car = campus::car(world.terrain(), speed)?;
+        let description = format!("the campus roads driven by a car at {speed} m/s");
+        Ok(Scenario::new("campus-car", &description, Arc::new(world), vec![car]))
     }
 
     /// A custom scenario; its length is the time the slowest robot needs to finish, at

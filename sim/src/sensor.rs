@@ -57,6 +57,25 @@ impl SensorModel {
         }
     }
 
+    /// An Ouster-like model with `beams` beams evenly from −45° to +45° (the wide field of view of
+    /// an OS0), 1024 columns, 100 m range, 0.3 m blind zone, 10 Hz.
+    pub fn ouster(beams: usize) -> Self {
+        let step = 90.0 / (beams.max(2) - 1) as f64;
+        Self {
+            name: format!("os{beams}"),
+            elevations: (0..beams).map(|i| (-45.0 + step * i as f64).to_radians()).collect(),
+            columns: 1024,
+            min_range: 0.3,
+            max_range: 100.0,
+            period: 0.1,
+        }
+    }
+
+    /// The same sensor spinning at `hz` revolutions per second (its `period` is `1 / hz`).
+    pub fn at_rate(self, hz: f64) -> Self {
+        Self { period: 1.0 / hz, ..self }
+    }
+
     /// Number of beams (rings).
     pub fn beams(&self) -> usize {
         self.elevations.len()
@@ -92,17 +111,23 @@ pub enum SensorKind {
     Vlp16,
     /// [`SensorModel::hdl64`].
     Hdl64,
+    /// [`SensorModel::ouster`] with 64 beams.
+    Os64,
+    /// [`SensorModel::ouster`] with 128 beams.
+    Os128,
 }
 
 impl SensorKind {
     /// Every built-in model.
-    pub const ALL: [SensorKind; 2] = [SensorKind::Vlp16, SensorKind::Hdl64];
+    pub const ALL: [SensorKind; 4] = [SensorKind::Vlp16, SensorKind::Hdl64, SensorKind::Os64, SensorKind::Os128];
 
     /// The model.
     pub fn model(self) -> SensorModel {
         match self {
             SensorKind::Vlp16 => SensorModel::vlp16(),
             SensorKind::Hdl64 => SensorModel::hdl64(),
+            SensorKind::Os64 => SensorModel::ouster(64),
+            SensorKind::Os128 => SensorModel::ouster(128),
         }
     }
 
@@ -111,6 +136,8 @@ impl SensorKind {
         match self {
             SensorKind::Vlp16 => "vlp16",
             SensorKind::Hdl64 => "hdl64",
+            SensorKind::Os64 => "os64",
+            SensorKind::Os128 => "os128",
         }
     }
 }
@@ -123,7 +150,7 @@ impl fmt::Display for SensorKind {
 
 /// A sensor name that is not one of [`SensorKind::ALL`].
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown sensor {0:?}: expected vlp16 or hdl64")]
+#[error("unknown sensor {0:?}: expected vlp16, hdl64, os64 or os128")]
 pub struct UnknownSensor(pub String);
 
 impl FromStr for SensorKind {
@@ -157,5 +184,34 @@ mod tests {
         assert_eq!(s.beams(), 64);
         assert!(s.elevations.windows(2).all(|w| w[0] < w[1]));
         assert!((s.elevations[63].to_degrees() - 2.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn ouster_beams_span_90_degrees_evenly() {
+        for (kind, beams) in [(SensorKind::Os64, 64), (SensorKind::Os128, 128)] {
+            let s = kind.model();
+            assert_eq!((s.name.as_str(), s.beams(), s.columns), (kind.name(), beams, 1024));
+            assert_eq!(s.rays_per_scan(), beams * 1024);
+            assert_eq!((s.min_range, s.max_range, s.period), (0.3, 100.0, 0.1));
+            let step = 90.0 / (beams - 1) as f64;
+            for (i, e) in s.elevations.iter().enumerate() {
+                assert!((e.to_degrees() - (-45.0 + step * i as f64)).abs() < 1e-12, "{kind} beam {i}");
+            }
+            assert!((s.elevations[beams - 1].to_degrees() - 45.0).abs() < 1e-12);
+            assert_eq!(kind.name().parse::<SensorKind>(), Ok(kind));
+        }
+        // The top beam of column 0 looks backwards, 45° up.
+        let d = SensorModel::ouster(64).direction(63, 0);
+        let h = 0.5f64.sqrt();
+        assert!((d - Vector3::new(-h, 0.0, h)).norm() < 1e-12, "{d}");
+    }
+
+    #[test]
+    fn a_rate_sets_the_period_and_the_firing_times() {
+        let s = SensorModel::vlp16().at_rate(2.0);
+        assert_eq!(s.period, 0.5);
+        assert_eq!(s.firing_time(900), 0.25);
+        assert_eq!(SensorModel::hdl64().at_rate(1.0).period, 1.0);
+        assert_eq!(SensorModel::hdl64().at_rate(5.0), SensorModel { period: 0.2, ..SensorModel::hdl64() });
     }
 }

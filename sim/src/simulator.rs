@@ -10,6 +10,7 @@ use crate::geometry::Ray;
 use crate::noise::SplitMix;
 use crate::scenario::Scenario;
 use crate::sensor::SensorModel;
+use crate::spin::SpinInPlace;
 use crate::trajectory::Trajectory;
 
 /// Simulator settings.
@@ -79,6 +80,8 @@ pub struct Simulator {
     scenario: Scenario,
     robot: usize,
     config: SimConfig,
+    /// A turn in place that replaces the robot's route, see [`Simulator::spinning`].
+    spin: Option<SpinInPlace>,
     /// (sin, cos) of each beam's elevation.
     elevations: Vec<(f64, f64)>,
     /// (sin, cos) of each column's azimuth.
@@ -96,7 +99,14 @@ impl Simulator {
         let sensor = &config.sensor;
         let elevations = sensor.elevations.iter().map(|e| e.sin_cos()).collect();
         let azimuths = (0..sensor.columns).map(|c| sensor.azimuth(c).sin_cos()).collect();
-        Ok(Simulator { scenario, robot, config, elevations, azimuths })
+        Ok(Simulator { scenario, robot, config, spin: None, elevations, azimuths })
+    }
+
+    /// The same robot standing still and turning in place as `spin` says, instead of driving its
+    /// route: the sweeps, their ground truth and [`Simulator::pose_at`] follow the spin (the noise
+    /// streams stay those of the robot).
+    pub fn spinning(self, spin: SpinInPlace) -> Simulator {
+        Simulator { spin: Some(spin), ..self }
     }
 
     /// The scenario.
@@ -114,7 +124,7 @@ impl Simulator {
         &self.config
     }
 
-    /// The robot's trajectory.
+    /// The robot's route (not followed while [`spinning`](Simulator::spinning)).
     pub fn trajectory(&self) -> &Trajectory {
         &self.scenario.robots()[self.robot]
     }
@@ -132,7 +142,10 @@ impl Simulator {
 
     /// Ground-truth sensor pose in the world frame at time `t`.
     pub fn pose_at(&self, t: f64) -> Isometry3<f64> {
-        self.trajectory().pose(t)
+        match &self.spin {
+            Some(spin) => spin.pose(self.scenario.world().terrain(), t),
+            None => self.trajectory().pose(t),
+        }
     }
 
     /// Ground truth of frame `frame`: the sensor pose at the end of its sweep.

@@ -276,16 +276,22 @@ impl Trajectory {
     pub fn pose(&self, t: f64) -> Isometry3<f64> {
         let (s, _) = self.distance_and_speed(t);
         let (p, heading) = self.planar_at(s);
-        let normal = self.terrain.normal(p.x, p.y).into_inner();
-        let forward = Vector3::new(heading.cos(), heading.sin(), 0.0);
-        // Forward projected onto the ground plane: the robot pitches and rolls with the slope.
-        let x = (forward - normal * forward.dot(&normal)).normalize();
-        let y = normal.cross(&x);
-        let rotation = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, normal]));
-        let ground = Point3::new(p.x, p.y, self.terrain.height(p.x, p.y));
-        let origin = ground + normal * self.mount_height;
-        Isometry3::from_parts(Translation3::from(origin.coords), UnitQuaternion::from_rotation_matrix(&rotation))
+        ground_pose(&self.terrain, p, heading, self.mount_height)
     }
+}
+
+/// The sensor pose of a robot standing at `p` on `terrain` with `heading` (rad): body z along the
+/// ground normal, x along the heading projected onto the ground plane (the robot pitches and rolls
+/// with the slope), the sensor `mount_height` above the ground along the normal.
+pub(crate) fn ground_pose(terrain: &Terrain, p: Point2<f64>, heading: f64, mount_height: f64) -> Isometry3<f64> {
+    let normal = terrain.normal(p.x, p.y).into_inner();
+    let forward = Vector3::new(heading.cos(), heading.sin(), 0.0);
+    let x = (forward - normal * forward.dot(&normal)).normalize();
+    let y = normal.cross(&x);
+    let rotation = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, normal]));
+    let ground = Point3::new(p.x, p.y, terrain.height(p.x, p.y));
+    let origin = ground + normal * mount_height;
+    Isometry3::from_parts(Translation3::from(origin.coords), UnitQuaternion::from_rotation_matrix(&rotation))
 }
 
 /// Rejects limits that would make the speed profile meaningless.

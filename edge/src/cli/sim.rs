@@ -50,6 +50,10 @@ pub enum SensorArg {
     Vlp16,
     /// HDL-64E-like: 64 beams, -24.9..+2 deg, 2083 columns, 120 m.
     Hdl64,
+    /// Ouster-like: 64 beams, -45..+45 deg, 1024 columns, 0.3-100 m.
+    Os64,
+    /// Ouster-like: 128 beams, -45..+45 deg, 1024 columns, 0.3-100 m.
+    Os128,
 }
 
 impl From<SensorArg> for SensorKind {
@@ -57,6 +61,8 @@ impl From<SensorArg> for SensorKind {
         match s {
             SensorArg::Vlp16 => SensorKind::Vlp16,
             SensorArg::Hdl64 => SensorKind::Hdl64,
+            SensorArg::Os64 => SensorKind::Os64,
+            SensorArg::Os128 => SensorKind::Os128,
         }
     }
 }

@@ -427,13 +427,19 @@ impl Recording {
         if self.options.drop_origin_points {
             dropped += drop_origin_points(&mut cloud);
         }
-        if cloud.ring.is_none() {
-            cloud.ring = rings::derive_rings(&cloud, &self.options.rings);
-        }
-        if let (None, TimeModel::Azimuth { period_s, spin }) = (&cloud.time, self.options.times) {
-            cloud.time = Some(times_from_azimuth(&cloud.points, period_s, spin));
-        }
+        derive_channels(&mut cloud, &self.options);
         Scan { cloud, stamp, index, dropped }
+    }
+}
+
+/// Fills the ring and time channels a cloud lacks as `options` say (channels it has are kept): what
+/// every scan of a recording goes through, for clouds that come from elsewhere.
+pub fn derive_channels(cloud: &mut PointCloud, options: &RecordingOptions) {
+    if cloud.ring.is_none() {
+        cloud.ring = rings::derive_rings(cloud, &options.rings);
+    }
+    if let (None, TimeModel::Azimuth { period_s, spin }) = (&cloud.time, options.times) {
+        cloud.time = Some(times_from_azimuth(&cloud.points, period_s, spin));
     }
 }
 

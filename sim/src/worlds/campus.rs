@@ -7,9 +7,9 @@
 //! waves (up to about ±4 m, slopes up to about 10 %), rendered as a 2 m triangle mesh that stays
 //! within 6 mm of the analytic surface the robots drive on.
 
-use super::{Builder, material, route};
+use super::{Builder, lanes, material, route};
 use crate::noise::SplitMix;
-use crate::trajectory::{Trajectory, TrajectoryConfig};
+use crate::trajectory::{Trajectory, TrajectoryConfig, TrajectoryError};
 use crate::world::{Terrain, Wave, World};
 
 /// Road centre lines (both axes).
@@ -223,4 +223,26 @@ fn crossing() -> Vec<[f64; 2]> {
 pub fn robots(terrain: &Terrain) -> Vec<Trajectory> {
     let config = TrajectoryConfig { cruise_speed: 2.0, mount_height: 1.0, ..TrajectoryConfig::default() };
     [north_west(), north_east(), south(), crossing()].iter().map(|c| route(c, TURN, terrain, &config)).collect()
+}
+
+/// How a car drives the campus roads at `speed` (m/s) on the straights: already at speed at t = 0
+/// and not stopping at the end; 3 m/s² braking and acceleration, corners at up to 6 m/s² lateral
+/// acceleration and 1 rad/s yaw rate (about 7 m/s round the 8 m corners); the sensor on the roof,
+/// 1.73 m up (KITTI's).
+pub fn car_config(speed: f64) -> TrajectoryConfig {
+    TrajectoryConfig {
+        cruise_speed: speed,
+        max_accel: 3.0,
+        max_lateral_accel: 6.0,
+        max_yaw_rate: 1.0,
+        mount_height: 1.73,
+        start_at_rest: false,
+        stop_at_end: false,
+    }
+}
+
+/// A car on robot 3's crossing (150 m west to east, 120 m south, 30 m east) driven as
+/// [`car_config`] says.
+pub fn car(terrain: &Terrain, speed: f64) -> Result<Trajectory, TrajectoryError> {
+    Trajectory::new(&lanes(&crossing(), TURN), false, terrain, &car_config(speed))
 }

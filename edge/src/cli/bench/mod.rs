@@ -2,6 +2,7 @@
 
 mod codec;
 mod odometry;
+mod robustness;
 
 use std::path::PathBuf;
 
@@ -11,6 +12,7 @@ use edge::odometry::pipeline::{self, Tuning};
 
 use super::sim::{SensorArg, scenario_values};
 use super::{SourceArgs, TuningArgs};
+use robustness::RobustnessArgs;
 
 #[derive(Subcommand, Debug)]
 pub enum BenchCommand {
@@ -29,7 +31,7 @@ pub enum BenchCommand {
     },
     /// LiDAR simulator: sweeps and rays per second on one core and on all cores.
     Sim {
-        /// LiDAR model [default: both].
+        /// LiDAR model [default: all].
         #[arg(long, value_enum)]
         sensor: Option<SensorArg>,
         /// Scenario whose robot 0 is simulated.
@@ -54,6 +56,12 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3)]
         runs: usize,
     },
+    /// Odometry robustness matrix (issue 13): every k-th scan of KITTI 00 and of the simulator,
+    /// starting mid-run; a car at 10 and 20 m/s; turning in place at 90 and 180 deg/s; sensors at
+    /// 1, 2, 5 Hz; Ouster-like 64 and 128 beams; shuffled points. Per case: our ATE, whether the
+    /// track held (final error below 5 % of the path or 0.1 m, and 5 deg), beside KISS-ICP on the
+    /// same scans (scripts/compare_kiss_icp.py). Progress on stderr, the table on stdout.
+    Robustness(RobustnessArgs),
     /// Fine registration (GICP, VGICP): median time per registration on one thread and on all, and
     /// the error against the reference pose, on DIR/{source,target}.ply and DIR/T_target_source.txt.
     Gicp {
@@ -76,6 +84,7 @@ pub fn bench(what: BenchCommand) -> Result<()> {
             let scans = pipeline::read_all(pipeline::open(&source.input, source.topic, Some(frames), &config)?)?;
             println!("{}", odometry::odometry(&scans, &config, runs)?);
         }
+        BenchCommand::Robustness(args) => robustness::robustness(args)?,
         BenchCommand::Gicp { data, runs } => println!("{}", cloud::registration::bench::gicp(&data, runs)?),
     }
     Ok(())
