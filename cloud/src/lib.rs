@@ -7,6 +7,7 @@ pub mod alignment;
 pub mod eigen3;
 pub mod formats;
 pub mod gauss_newton;
+pub mod global;
 pub mod kdtree;
 pub mod moments;
 pub mod ordered_tree;
