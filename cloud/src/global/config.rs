@@ -28,7 +28,7 @@ pub struct GlobalConfig {
     pub matching: MatchingConfig,
     /// Step 6.
     pub ransac: RansacConfig,
-    /// Step 7.
+    /// Step 7; its distance gate is also the one [`super::GlobalAlignment::fitness`] counts with.
     pub polish: PolishConfig,
 }
 
