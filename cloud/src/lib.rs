@@ -1,7 +1,8 @@
 //! Point clouds shared by the edge and the station.
 //!
 //! Everything here is pure computation on in-memory data, except [`formats`], whose parsers work on
-//! byte slices and whose thin `read_*`/`write_*` wrappers are the only functions that touch files.
+//! byte slices and whose thin `read_*`/`write_*` wrappers are the only functions that touch files
+//! (the benchmarks, [`registration::bench`] and [`global::bench`], read their data through them).
 
 pub mod alignment;
 pub mod eigen3;
