@@ -1,12 +1,14 @@
 //! Point clouds shared by the edge and the station.
 //!
 //! Everything here is pure computation on in-memory data, except [`formats`], whose parsers work on
-//! byte slices and whose thin `read_*`/`write_*` wrappers are the only functions that touch files.
+//! byte slices and whose thin `read_*`/`write_*` wrappers are the only functions that touch files
+//! (the benchmarks, [`registration::bench`] and [`global::bench`], read their data through them).
 
 pub mod alignment;
 pub mod eigen3;
 pub mod formats;
 pub mod gauss_newton;
+pub mod global;
 pub mod kdtree;
 pub mod moments;
 pub mod ordered_tree;

@@ -1,6 +1,7 @@
 //! EMR-FLOAM central station library: the map-merging computations behind `emr-station`.
 //!
-//! [`pairwise`] aligns two robot maps without an initial guess (map_merge_3d's global registration).
+//! [`pairwise`] aligns two robot maps without an initial guess (`cloud::global`, map_merge_3d's global
+//! registration) and judges whether the alignment is reliable enough to merge.
 //! [`merge`] fuses N maps into one global map along a maximum spanning tree of pairwise estimates.
 //! [`service`] is the networked station (`emr-station run`), the only part that touches the network.
 //! The station knows nothing of the robots' code: it sees them only through their messages.

@@ -3,15 +3,14 @@
 //! features.
 
 use cloud::PointCloud;
+use cloud::global::fpfh::fpfh_at;
+use cloud::global::harris::detect_keypoints;
+use cloud::global::normals::{Surfels, estimate_normals};
+use cloud::global::{HarrisConfig, NormalConfig, Orientation};
 use cloud::se3::pose_error;
 use nalgebra::{Isometry3, Point3, Rotation3, Vector3};
 use station::pairwise::bench::{bench_pairwise, read_transform};
-use station::pairwise::fpfh::fpfh_at;
-use station::pairwise::harris::detect_keypoints;
-use station::pairwise::normals::{Surfels, estimate_normals};
-use station::pairwise::{
-    HarrisConfig, NormalConfig, Orientation, PairwiseConfig, PairwiseError, PairwiseOutcome, register,
-};
+use station::pairwise::{PairwiseConfig, PairwiseError, PairwiseOutcome, register};
 
 use testkit::{Rng, assert_pose_close, pose_from_yaw_deg, shared_data};
 
@@ -194,7 +193,7 @@ fn degenerate_input_is_an_error_or_not_aligned_never_a_panic() {
         Err(e) => println!("plane: {e}"),
     }
     let mut invalid = config;
-    invalid.preprocess.voxel_size = f32::NAN;
+    invalid.global.preprocess.voxel_size = f32::NAN;
     assert!(matches!(register(&good, &good, &invalid), Err(PairwiseError::Config(_))));
 }
 
@@ -206,7 +205,7 @@ fn rotated(s: &Surfels, r: &Rotation3<f32>) -> Surfels {
 
 #[test]
 fn fpfh_is_invariant_to_rotation() {
-    let config = PairwiseConfig::outdoor();
+    let config = PairwiseConfig::outdoor().global;
     let cloud = PointCloud::from_points(street(4).into_iter().filter(|p| p.x < 40.0).collect());
     let down = cloud::voxel::downsample(&cloud, 0.4).unwrap();
     let surfels = estimate_normals(&down, &config.normals, config.reach()).unwrap();
@@ -293,7 +292,7 @@ fn bench_kitti_revisit_50k() {
     let ok = (0..10u64)
         .filter(|&seed| {
             let mut config = PairwiseConfig::outdoor();
-            config.ransac.seed = seed;
+            config.global.ransac.seed = seed;
             let outcome = register(&source, &target, &config).unwrap();
             outcome.aligned().is_some_and(|r| {
                 let e = pose_error(&r.transform, &truth);

@@ -124,7 +124,7 @@ fn prepare(source: &PointCloud, target: &PointCloud, config: &RegistrationConfig
 }
 
 /// Median and minimum wall time of `runs` calls, milliseconds.
-fn median_ms(runs: usize, mut f: impl FnMut() -> Result<(), RegistrationError>) -> Result<Timing, RegistrationError> {
+pub(crate) fn median_ms<E>(runs: usize, mut f: impl FnMut() -> Result<(), E>) -> Result<Timing, E> {
     let mut times = Vec::with_capacity(runs);
     for _ in 0..runs {
         let (result, took) = crate::stopwatch::timed(&mut f);
@@ -136,7 +136,7 @@ fn median_ms(runs: usize, mut f: impl FnMut() -> Result<(), RegistrationError>) 
 }
 
 /// Reads a 4x4 row-major matrix (whitespace separated) as a rigid transform.
-fn read_reference(path: &Path) -> Result<Isometry3<f64>, BenchError> {
+pub(crate) fn read_reference(path: &Path) -> Result<Isometry3<f64>, BenchError> {
     let fail = |reason: String| BenchError::Reference { path: path.to_owned(), reason };
     let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
     let values: Vec<f64> =

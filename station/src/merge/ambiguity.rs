@@ -21,10 +21,11 @@
 //! by chance, the walls do not), a half-turn of `warehouse-large` 0.05 / 0.70 (the hall is nearly
 //! symmetric, the descriptors are not fooled).
 
+use cloud::global::{Features, Surfels, matching, polish, ransac};
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
-use crate::pairwise::{MapFeatures, PairwiseConfig, Surfels, matching, polish, ransac};
+use crate::pairwise::PairwiseConfig;
 
 /// The strongest hypothesis distinct from the chosen one.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -53,26 +54,26 @@ const PARALLEL: f32 = 0.8;
 /// The best RANSAC model on the correspondences that disagree with `chosen`, if one exists and lies
 /// at least `min_distance` metres from `chosen` (at the source keypoints).
 pub fn runner_up(
-    source: &MapFeatures,
-    target: &MapFeatures,
+    source: &Features,
+    target: &Features,
     chosen: &Isometry3<f64>,
     min_distance: f64,
     config: &PairwiseConfig,
 ) -> Option<RunnerUp> {
-    let matches = matching::reciprocal_matches(&source.descriptors, &target.descriptors, config.matching.k);
-    let limit = EXCLUSION * config.ransac.inlier_distance;
+    let matches = matching::reciprocal_matches(&source.descriptors, &target.descriptors, config.global.matching.k);
+    let limit = EXCLUSION * config.global.ransac.inlier_distance;
     let (src, tgt): (Vec<Point3<f64>>, Vec<Point3<f64>>) = matches
         .iter()
         .map(|c| (source.keypoint(c.source).cast::<f64>(), target.keypoint(c.target).cast::<f64>()))
         .filter(|(s, t)| (chosen * s - t).norm() > limit)
         .unzip();
-    let model = ransac::ransac(&src, &tgt, &config.ransac)?;
+    let model = ransac::ransac(&src, &tgt, &config.global.ransac)?;
     let keypoints = source.keypoint_positions();
     if mean_displacement(&keypoints, chosen, &model.transform) < min_distance {
         return None;
     }
     // Polished like the chosen transform, so that both are judged at their best.
-    let transform = polish::polish(&source.surfels, &target.surfels, &model.transform, &config.polish);
+    let transform = polish::polish(&source.surfels, &target.surfels, &model.transform, &config.global.polish);
     let upright_support =
         upright_support(&source.surfels, &target.surfels, &transform, config.confidence.overlap_distance);
     Some(RunnerUp { transform, inliers: model.inliers.len(), upright_support })

@@ -1,6 +1,7 @@
 //! Step 2-3 — one pairwise estimate: global registration, VGICP refinement, confidence.
 
 use cloud::eigen3::symmetric_eigen3;
+use cloud::global::polish;
 use cloud::registration::{GaussianCloud, Method, Target, align_gaussians};
 use cloud::se3::pose_error;
 use nalgebra::{Isometry3, Point3};
@@ -9,7 +10,7 @@ use rayon::prelude::*;
 use super::ambiguity::{RunnerUp, mean_displacement, runner_up, upright_support};
 use super::{MergeConfig, PreparedMap};
 use crate::pairwise::{
-    self, Confidence, MapFeatures, PairwiseConfig, PairwiseOutcome, PairwiseResult, Rejection, confidence, polish,
+    self, Confidence, Features, PairwiseConfig, PairwiseOutcome, PairwiseResult, Rejection, confidence,
 };
 
 /// An accepted edge of the match graph between maps `a` and `b`.
@@ -96,8 +97,8 @@ impl PairVerdict {
 
 /// The features and settings a transform was found with.
 struct Scale<'a> {
-    source: &'a MapFeatures,
-    target: &'a MapFeatures,
+    source: &'a Features,
+    target: &'a Features,
     config: &'a PairwiseConfig,
     /// [`MergeConfig::ambiguity_distance`] in this scale's RANSAC inlier distances.
     ambiguity_distance: f64,
@@ -190,9 +191,9 @@ fn coarse_alignment<'a>(
     // The coarse polish leaves a decimetre; the fine surfels bring it within VGICP's reach.
     let (fine_source, fine_target) = (source.usable()?, target.usable()?);
     result.transform =
-        polish::polish(&fine_source.surfels, &fine_target.surfels, &result.transform, &config.pairwise.polish);
-    let ambiguity_distance =
-        config.ambiguity_distance * coarse.ransac.inlier_distance / config.pairwise.ransac.inlier_distance;
+        polish::polish(&fine_source.surfels, &fine_target.surfels, &result.transform, &config.pairwise.global.polish);
+    let ambiguity_distance = config.ambiguity_distance * coarse.global.ransac.inlier_distance
+        / config.pairwise.global.ransac.inlier_distance;
     let scale = Scale { source: coarse_source, target: coarse_target, config: coarse, ambiguity_distance };
     Some((scale, *result))
 }

@@ -5,7 +5,7 @@ use cloud::registration::{GaussianCloud, MIN_POINTS};
 use cloud::voxel::downsample;
 
 use super::MergeConfig;
-use crate::pairwise::{FeatureError, MapFeatures};
+use crate::pairwise::{FeatureError, Features};
 
 /// One map ready for pairwise estimates: its finite points, features and VGICP Gaussians.
 pub struct PreparedMap {
@@ -14,9 +14,9 @@ pub struct PreparedMap {
     /// Points dropped because a coordinate was NaN or infinite.
     pub dropped_non_finite: usize,
     /// Pairwise features, or why the map cannot be registered.
-    pub features: Result<MapFeatures, FeatureError>,
+    pub features: Result<Features, FeatureError>,
     /// Features at [`MergeConfig::coarse`], when configured and computable.
-    pub coarse: Option<MapFeatures>,
+    pub coarse: Option<Features>,
     /// The map at [`MergeConfig::refine_voxel`] with covariances; `None` when too small to refine.
     pub fine: Option<GaussianCloud>,
     /// The map at [`super::FinishConfig::voxel`] with covariances, when a finishing pass is configured.
@@ -30,8 +30,8 @@ impl PreparedMap {
         let ((features, coarse), (fine, finish)) = rayon::join(
             || {
                 rayon::join(
-                    || MapFeatures::compute(&cloud, &config.pairwise),
-                    || config.coarse.as_ref().and_then(|c| MapFeatures::compute(&cloud, c).ok()),
+                    || Features::compute(&cloud, &config.pairwise.global),
+                    || config.coarse.as_ref().and_then(|c| Features::compute(&cloud, &c.global).ok()),
                 )
             },
             || {
@@ -45,12 +45,12 @@ impl PreparedMap {
     }
 
     /// The features if the map is usable.
-    pub fn usable(&self) -> Option<&MapFeatures> {
+    pub fn usable(&self) -> Option<&Features> {
         self.features.as_ref().ok()
     }
 
     /// The coarse features if the map is usable at both scales.
-    pub fn usable_coarse(&self) -> Option<&MapFeatures> {
+    pub fn usable_coarse(&self) -> Option<&Features> {
         self.usable().and(self.coarse.as_ref())
     }
 }

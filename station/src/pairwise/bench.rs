@@ -156,9 +156,9 @@ impl fmt::Display for PairwiseBench {
             writeln!(
                 f,
                 "matching {:.1} ms, ransac {:.1} ms, polish {:.1} ms, confidence {:.1} ms, total {:.1} ms",
-                ms(t.matching),
-                ms(t.ransac),
-                ms(t.polish),
+                ms(t.estimate.matching),
+                ms(t.estimate.ransac),
+                ms(t.estimate.polish),
                 ms(t.confidence),
                 ms(t.total)
             )?;

@@ -1,65 +1,30 @@
 //! Pairwise global registration of two robot maps without an initial guess (paper §4; the pipeline
 //! of map_merge_3d, Hörner 2016, made faster and more robust).
 //!
-//! 1. [`preprocess`]: finite points, voxel downsampling, outlier removal;
-//! 2. [`normals`]: plane-fit normals with a frame-independent orientation;
-//! 3. [`harris`]: Harris 3D keypoints with an adaptive count;
-//! 4. [`fpfh`]: FPFH descriptors at the keypoints, over the whole downsampled map;
-//! 5. [`matching`]: reciprocal k-nearest matching in descriptor space;
-//! 6. [`ransac`]: RANSAC with edge-length pre-rejection and an adaptive iteration bound, Umeyama
-//!    refit on all inliers;
-//! 7. [`polish`]: a few point-to-plane steps on the downsampled maps (decimetres to centimetres);
+//! The steps that do not depend on what the clouds are live in [`cloud::global`], shared with the
+//! robots' re-localisation: features of one map (steps 1-4: preprocess, normals, Harris keypoints,
+//! FPFH; [`Features::compute`]), then matching, RANSAC and a point-to-plane polish (steps 5-7;
+//! [`cloud::global::estimate()`]). What is about merging maps is here: [`confidence`] scores the
+//! result and decides whether it is reliable; [`align`] and [`register`] put the two together, and
+//! [`bench`] times them. The output transform maps SOURCE points into the TARGET frame; fine
+//! registration (VGICP) is left to the caller.
 //!
-//! then [`confidence`] scores the result and decides whether it is reliable. The output transform
-//! maps SOURCE points into the TARGET frame; fine registration (VGICP) is left to the caller.
-//!
-//! Steps 1-4 depend on one map only: [`MapFeatures::compute`] runs them once per map so that a
-//! station merging many maps computes each map's features once and calls [`align`] per pair;
+//! A station merging many maps computes each map's features once and calls [`align`] per pair;
 //! [`register`] does both for a single pair. Bad input (empty clouds, a few points, NaN, identical
 //! points) gives an error or [`PairwiseOutcome::NotAligned`], never a panic.
 
 pub mod bench;
 pub mod confidence;
-pub mod fpfh;
-pub mod harris;
-pub mod matching;
-pub mod normals;
-pub mod polish;
-pub mod preprocess;
-pub mod ransac;
 
 use std::time::Duration;
 
 use cloud::PointCloud;
-use cloud::stopwatch::Stopwatch;
+use cloud::global::{EstimateTiming, NoModel, estimate};
+use cloud::stopwatch::{Stopwatch, timed};
 use nalgebra::{Isometry3, Point3};
 
+pub use cloud::global::{Correspondence, FeatureError, FeatureTiming, Features, GlobalConfig};
 pub use confidence::{Confidence, ConfidenceConfig};
-pub use fpfh::{Fpfh, FpfhConfig};
-pub use harris::HarrisConfig;
-pub use matching::{Correspondence, MatchingConfig};
-pub use normals::{NormalConfig, Orientation, Surfels};
-pub use polish::PolishConfig;
-pub use preprocess::{OutlierFilter, PreprocessConfig};
-pub use ransac::RansacConfig;
-
-/// Why one map's features could not be computed.
-#[derive(Clone, Debug, PartialEq, thiserror::Error)]
-pub enum FeatureError {
-    /// A setting is out of range.
-    #[error("invalid configuration: {0}")]
-    InvalidConfig(&'static str),
-    /// Too little data survived a step.
-    #[error("{points} usable points after {stage}, need at least {needed}")]
-    TooFewPoints {
-        /// The step after which the count fell short.
-        stage: &'static str,
-        /// Points (or descriptors) left.
-        points: usize,
-        /// Minimum required.
-        needed: usize,
-    },
-}
 
 /// Why a pair of maps could not be processed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -75,23 +40,11 @@ pub enum PairwiseError {
     Config(FeatureError),
 }
 
-/// Settings of the whole pipeline, one struct per step.
+/// Settings of the registration steps and of the acceptance.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PairwiseConfig {
-    /// Step 1.
-    pub preprocess: PreprocessConfig,
-    /// Step 2.
-    pub normals: NormalConfig,
-    /// Step 3.
-    pub keypoints: HarrisConfig,
-    /// Step 4.
-    pub descriptors: FpfhConfig,
-    /// Step 5.
-    pub matching: MatchingConfig,
-    /// Step 6.
-    pub ransac: RansacConfig,
-    /// Step 7.
-    pub polish: PolishConfig,
+    /// Steps 1-7.
+    pub global: GlobalConfig,
     /// Scores and acceptance.
     pub confidence: ConfidenceConfig,
 }
@@ -103,21 +56,10 @@ impl Default for PairwiseConfig {
 }
 
 impl PairwiseConfig {
-    /// Every radius scaled from the voxel size `v` (Open3D's tutorial ratios: normals 2v, FPFH 5v).
+    /// Every radius scaled from the voxel size `v` ([`GlobalConfig::for_resolution`]).
     pub fn for_resolution(v: f32) -> Self {
-        let vd = f64::from(v);
         Self {
-            preprocess: PreprocessConfig { voxel_size: v, min_spacing: 0.5 * v, ..PreprocessConfig::default() },
-            normals: NormalConfig {
-                radius: 2.0 * v,
-                orientation: Orientation::LocalMass { radius: 5.0 * v },
-                ..NormalConfig::default()
-            },
-            keypoints: HarrisConfig { radius: 3.0 * v, nms_radius: v, ..HarrisConfig::default() },
-            descriptors: FpfhConfig { radius: 5.0 * v, ..FpfhConfig::default() },
-            matching: MatchingConfig::default(),
-            ransac: RansacConfig { inlier_distance: 2.5 * vd, min_edge: 2.5 * vd, ..RansacConfig::default() },
-            polish: PolishConfig { max_distance: 2.0 * v, ..PolishConfig::default() },
+            global: GlobalConfig::for_resolution(v),
             confidence: ConfidenceConfig {
                 max_correspondence_distance: 5.0 * v,
                 overlap_distance: 1.5 * v,
@@ -136,47 +78,10 @@ impl PairwiseConfig {
         Self::for_resolution(0.1)
     }
 
-    /// The largest neighbourhood radius of steps 2-4: the reach of the shared neighbour lists.
-    pub fn reach(&self) -> f32 {
-        let mass = match self.normals.orientation {
-            Orientation::LocalMass { radius } => radius,
-            _ => 0.0,
-        };
-        [self.normals.radius, mass, self.keypoints.radius, self.keypoints.nms_radius, self.descriptors.radius]
-            .into_iter()
-            .fold(0.0, f32::max)
-    }
-
     /// Checks every step's settings.
     pub fn validate(&self) -> Result<(), FeatureError> {
-        self.preprocess.validate()?;
-        self.normals.validate()?;
-        self.keypoints.validate()?;
-        self.descriptors.validate()?;
-        self.matching.validate()?;
-        self.ransac.validate()?;
-        self.polish.validate()?;
+        self.global.validate()?;
         self.confidence.validate()
-    }
-}
-
-/// Wall time of the per-map steps.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct FeatureTiming {
-    /// Step 1.
-    pub preprocess: Duration,
-    /// Step 2.
-    pub normals: Duration,
-    /// Step 3.
-    pub keypoints: Duration,
-    /// Step 4.
-    pub descriptors: Duration,
-}
-
-impl FeatureTiming {
-    /// Sum of the four steps.
-    pub fn total(&self) -> Duration {
-        self.preprocess + self.normals + self.keypoints + self.descriptors
     }
 }
 
@@ -187,70 +92,13 @@ pub struct StepTiming {
     pub source: FeatureTiming,
     /// Steps 1-4 on the target map.
     pub target: FeatureTiming,
-    /// Step 5.
-    pub matching: Duration,
-    /// Step 6.
-    pub ransac: Duration,
-    /// Step 7.
-    pub polish: Duration,
+    /// Steps 5-7.
+    pub estimate: EstimateTiming,
     /// Confidence scores.
     pub confidence: Duration,
     /// End to end ([`register`] computes both maps' features concurrently, so this is less than
     /// the sum of the steps).
     pub total: Duration,
-}
-
-/// Steps 1-4 of one map: surfels, keypoints and their descriptors.
-pub struct MapFeatures {
-    /// Downsampled, filtered points with normals (and their k-d tree).
-    pub surfels: Surfels,
-    /// Indices into `surfels` of the keypoints that have a descriptor.
-    pub keypoints: Vec<usize>,
-    /// FPFH of each keypoint.
-    pub descriptors: Vec<Fpfh>,
-    /// Time spent per step.
-    pub timing: FeatureTiming,
-}
-
-impl MapFeatures {
-    /// Runs steps 1-4 on `cloud`.
-    pub fn compute(cloud: &PointCloud, config: &PairwiseConfig) -> Result<Self, FeatureError> {
-        config.validate()?;
-        let mut timing = FeatureTiming::default();
-        let mut watch = Stopwatch::start();
-        let filtered = preprocess::preprocess(cloud, &config.preprocess)?;
-        timing.preprocess = watch.lap();
-        let surfels = normals::estimate_normals(&filtered, &config.normals, config.reach())?;
-        timing.normals = watch.lap();
-        let with_normals = surfels.with_normals();
-        if with_normals < config.preprocess.min_points.max(3) {
-            return Err(FeatureError::TooFewPoints {
-                stage: "normal estimation",
-                points: with_normals,
-                needed: config.preprocess.min_points.max(3),
-            });
-        }
-        let candidates = harris::detect_keypoints(&surfels, &config.keypoints);
-        timing.keypoints = watch.lap();
-        let described = fpfh::fpfh_at(&surfels, &candidates, &config.descriptors);
-        let (keypoints, descriptors): (Vec<usize>, Vec<Fpfh>) =
-            candidates.iter().zip(described).filter_map(|(&i, d)| Some((i, d?))).unzip();
-        timing.descriptors = watch.lap();
-        if keypoints.len() < 3 {
-            return Err(FeatureError::TooFewPoints { stage: "descriptors", points: keypoints.len(), needed: 3 });
-        }
-        Ok(Self { surfels, keypoints, descriptors, timing })
-    }
-
-    /// Position of keypoint `k` (an index into [`MapFeatures::keypoints`]).
-    pub fn keypoint(&self, k: usize) -> Point3<f32> {
-        self.surfels.points[self.keypoints[k]]
-    }
-
-    /// Positions of all keypoints.
-    pub fn keypoint_positions(&self) -> Vec<Point3<f32>> {
-        (0..self.keypoints.len()).map(|k| self.keypoint(k)).collect()
-    }
 }
 
 /// A transform between two maps with its evidence.
@@ -358,7 +206,8 @@ pub fn register(
 ) -> Result<PairwiseOutcome, PairwiseError> {
     config.validate().map_err(PairwiseError::Config)?;
     let watch = Stopwatch::start();
-    let (s, t) = rayon::join(|| MapFeatures::compute(source, config), || MapFeatures::compute(target, config));
+    let features = |cloud| Features::compute(cloud, &config.global);
+    let (s, t) = rayon::join(|| features(source), || features(target));
     let (s, t) = (s.map_err(PairwiseError::Source)?, t.map_err(PairwiseError::Target)?);
     let mut outcome = align(&s, &t, config);
     if let Some(r) = outcome.best_mut() {
@@ -367,51 +216,43 @@ pub fn register(
     Ok(outcome)
 }
 
-/// Steps 5-6 and the scores for two maps' features (`total` timing: features plus this call).
-pub fn align(source: &MapFeatures, target: &MapFeatures, config: &PairwiseConfig) -> PairwiseOutcome {
-    let mut timing = StepTiming { source: source.timing, target: target.timing, ..StepTiming::default() };
-    let mut watch = Stopwatch::start();
-    let matches = matching::reciprocal_matches(&source.descriptors, &target.descriptors, config.matching.k);
-    timing.matching = watch.lap();
-    let src: Vec<Point3<f64>> = matches.iter().map(|c| source.keypoint(c.source).cast()).collect();
-    let tgt: Vec<Point3<f64>> = matches.iter().map(|c| target.keypoint(c.target).cast()).collect();
-    let model = ransac::ransac(&src, &tgt, &config.ransac);
-    timing.ransac = watch.lap();
-    let Some(model) = model else {
-        return PairwiseOutcome::NotAligned {
-            reason: Rejection::NoModel { correspondences: matches.len() },
-            best: None,
-        };
+/// Steps 5-7 and the scores for two maps' features (`total` timing: features plus this call).
+pub fn align(source: &Features, target: &Features, config: &PairwiseConfig) -> PairwiseOutcome {
+    let found = match estimate(source, target, &config.global) {
+        Ok(found) => found,
+        Err(NoModel { correspondences }) => {
+            return PairwiseOutcome::NotAligned { reason: Rejection::NoModel { correspondences }, best: None };
+        }
     };
-    let transform = polish::polish(&source.surfels, &target.surfels, &model.transform, &config.polish);
-    timing.polish = watch.lap();
-    let inlier_ratio = model.inliers.len() as f64 / matches.len() as f64;
-    let scores = confidence::confidence(
-        &source.surfels.points,
-        &target.surfels.tree,
-        &transform,
-        inlier_ratio,
-        &config.confidence,
-    );
-    timing.confidence = watch.lap();
-    timing.total = source.timing.total()
-        + target.timing.total()
-        + timing.matching
-        + timing.ransac
-        + timing.polish
-        + timing.confidence;
+    let (scores, took) = timed(|| {
+        confidence::confidence(
+            &source.surfels.points,
+            &target.surfels.tree,
+            &found.transform,
+            found.inlier_ratio(),
+            &config.confidence,
+        )
+    });
     let result = PairwiseResult {
-        transform,
-        coarse_transform: model.transform,
-        inliers: model.inliers.iter().map(|&i| matches[i]).collect(),
-        correspondences: matches.len(),
-        inlier_ratio,
+        transform: found.transform,
+        coarse_transform: found.coarse_transform,
+        inliers: found.inlier_matches(),
+        correspondences: found.matches.len(),
+        inlier_ratio: found.inlier_ratio(),
         keypoints: (source.keypoint_positions(), target.keypoint_positions()),
-        ransac_iterations: model.iterations,
+        ransac_iterations: found.ransac_iterations,
         confidence: scores,
-        timing,
+        timing: StepTiming::of(source, target, found.timing, took),
     };
     accept(result, &config.confidence)
+}
+
+impl StepTiming {
+    /// The steps' times of one [`align`] whose confidence scores took `confidence`.
+    fn of(source: &Features, target: &Features, estimate: EstimateTiming, confidence: Duration) -> Self {
+        let total = source.timing.total() + target.timing.total() + estimate.total() + confidence;
+        Self { source: source.timing, target: target.timing, estimate, confidence, total }
+    }
 }
 
 /// The outcome of the reliability checks on a result.

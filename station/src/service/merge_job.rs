@@ -123,7 +123,7 @@ fn log_report(report: &MergeReport) {
 /// The finest voxel any merge stage works at: coarser local maps would starve it, finer ones only
 /// cost time (indoor 0.1 m; outdoor 0.2 m, the output voxel).
 fn local_map_voxel(config: &MergeConfig) -> f32 {
-    config.pairwise.preprocess.voxel_size.min(config.refine_voxel).min(config.output_voxel)
+    config.pairwise.global.preprocess.voxel_size.min(config.refine_voxel).min(config.output_voxel)
 }
 
 /// The keyframes' clouds moved by their poses, unioned and voxelised.

@@ -72,6 +72,17 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 20)]
         runs: usize,
     },
+    /// Global registration without an initial guess (FPFH + RANSAC, the scan defaults): median
+    /// time of `cloud::global::align` and the error against the reference, on DIR/001500.bin onto
+    /// DIR/000720.bin with DIR/T_000720_001500.txt (the KITTI 08 reverse revisit).
+    Global {
+        /// Directory of the scan pair.
+        #[arg(long, default_value = "../shared/data/kitti08_revisit")]
+        data: PathBuf,
+        /// Timed runs (the median is reported).
+        #[arg(long, default_value_t = 10)]
+        runs: usize,
+    },
 }
 
 /// `emr-edge bench WHAT`.
@@ -86,6 +97,12 @@ pub fn bench(what: BenchCommand) -> Result<()> {
         }
         BenchCommand::Robustness(args) => robustness::robustness(args)?,
         BenchCommand::Gicp { data, runs } => println!("{}", cloud::registration::bench::gicp(&data, runs)?),
+        BenchCommand::Global { data, runs } => {
+            let (source, target, reference) =
+                (data.join("001500.bin"), data.join("000720.bin"), data.join("T_000720_001500.txt"));
+            let config = cloud::global::GlobalConfig::default();
+            println!("{}", cloud::global::bench::global(&source, &target, Some(&reference), &config, runs)?);
+        }
     }
     Ok(())
 }

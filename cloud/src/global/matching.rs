@@ -13,7 +13,7 @@
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 
-use super::FeatureError;
+use super::error::FeatureError;
 use super::fpfh::{FPFH_LEN, Fpfh};
 
 /// Settings of step 5.

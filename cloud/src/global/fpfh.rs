@@ -19,7 +19,7 @@
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
-use super::FeatureError;
+use super::error::FeatureError;
 use super::normals::Surfels;
 
 /// Bins per angle.

@@ -13,14 +13,13 @@
 //! grid of the suppression radius fills in (uniform subsampling, as in Open3D's keypoint-free
 //! pipeline).
 
-use rustc_hash::FxHashSet;
-
-use cloud::voxel::VoxelKey;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
+use rustc_hash::FxHashSet;
 
-use super::FeatureError;
+use super::error::FeatureError;
 use super::normals::Surfels;
+use crate::voxel::VoxelKey;
 
 /// Settings of step 3.
 #[derive(Clone, Copy, Debug, PartialEq)]

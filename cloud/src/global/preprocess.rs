@@ -7,13 +7,13 @@
 //! thing everywhere in the map, and the filter runs on far fewer points. Unlike map_merge_3d, a cloud
 //! that the filters empty (or nearly) is reported as an error instead of crashing a later step.
 
-use cloud::PointCloud;
-use cloud::kdtree::KdTree;
-use cloud::voxel::VoxelKey;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
-use super::FeatureError;
+use super::error::FeatureError;
+use crate::PointCloud;
+use crate::kdtree::KdTree;
+use crate::voxel::VoxelKey;
 
 /// How isolated points are recognised and removed after downsampling.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -94,7 +94,7 @@ pub fn preprocess(cloud: &PointCloud, config: &PreprocessConfig) -> Result<Point
     let mut finite = PointCloud::from_points(cloud.points.clone());
     finite.retain_finite();
     check_size(&finite, "dropping non-finite points", config.min_points)?;
-    let down = cloud::voxel::downsample(&finite, config.voxel_size)
+    let down = crate::voxel::downsample(&finite, config.voxel_size)
         .map_err(|_| FeatureError::InvalidConfig("preprocess.voxel_size must be positive and finite"))?;
     let thinned = thin(&down, config.min_spacing);
     check_size(&thinned, "voxel downsampling", config.min_points)?;

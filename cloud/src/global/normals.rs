@@ -16,14 +16,14 @@
 //! can use [`Orientation::Viewpoint`] at the origin; [`Orientation::AboveCentroid`] is the simple
 //! "viewpoint above the map" rule.
 
-use cloud::PointCloud;
-use cloud::eigen3::symmetric_eigen3;
-use cloud::kdtree::KdTree;
-use cloud::moments::mean_covariance;
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
-use super::FeatureError;
+use super::error::FeatureError;
+use crate::PointCloud;
+use crate::eigen3::symmetric_eigen3;
+use crate::kdtree::KdTree;
+use crate::moments::mean_covariance;
 
 /// How the sign of each normal is chosen.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -79,7 +79,7 @@ impl NormalConfig {
     }
 }
 
-/// One entry of a shared neighbour list: half the size of a [`cloud::kdtree::Neighbour`], because a map's lists
+/// One entry of a shared neighbour list: half the size of a [`crate::kdtree::Neighbour`], because a map's lists
 /// hold tens of millions of entries (80 per point at the indoor reach).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Near {
@@ -98,7 +98,7 @@ impl Near {
 /// Every point's neighbours within a fixed reach, nearest first, computed once and shared by the
 /// later steps (the k-d tree's radius search dominates their cost otherwise).
 ///
-/// The lists are stored per block of [`BLOCK`] consecutive points, each block built by one task
+/// The lists are stored per block of `BLOCK` consecutive points, each block built by one task
 /// into one buffer: no allocation per point and no final copy of the whole set.
 pub struct Neighbourhoods {
     reach: f32,

@@ -4,19 +4,19 @@
 //! pair can sit half a voxel apart and the fitted transform is good to a decimetre or two. A few
 //! Gauss-Newton iterations of point-to-plane ICP (Chen & Medioni 1992) on a few thousand source
 //! surfels against the target surfels and their normals bring it to centimetres for a millisecond
-//! each, in the workspace's right perturbation `T ← T · exp(δ)` ([`cloud::gauss_newton`]). This is not fine registration: it runs on the downsampled maps, with a hard distance gate,
+//! each, in the workspace's right perturbation `T ← T · exp(δ)` ([`crate::gauss_newton`]). This is not fine registration: it runs on the downsampled maps, with a hard distance gate,
 //! and the caller may still chain VGICP on full-resolution maps. It is skipped when
 //! `iterations = 0`; the unpolished transform is kept next to the polished one.
 
-use cloud::gauss_newton::{
-    BLOCK, Factor, NormalEquations, SignedDistance, SignedDistanceFactor, solve_damped, sum_blocks,
-};
-use cloud::se3;
 use nalgebra::{Isometry3, Point3, Vector6};
 use rayon::prelude::*;
 
-use super::FeatureError;
+use super::error::FeatureError;
 use super::normals::Surfels;
+use crate::gauss_newton::{
+    BLOCK, Factor, NormalEquations, SignedDistance, SignedDistanceFactor, solve_damped, sum_blocks,
+};
+use crate::se3;
 
 /// Settings of step 7.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -12,11 +12,11 @@
 //! Iterations run in rounds of independent chunks, each with its own SplitMix64 stream derived from
 //! the seed and the chunk number, so the result is reproducible whatever the thread count.
 
-use cloud::alignment::umeyama;
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
-use super::FeatureError;
+use super::error::FeatureError;
+use crate::alignment::umeyama;
 
 /// Settings of step 6.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -1,0 +1,97 @@
+//! Steps 5-7 on two clouds' features: descriptor matches, the RANSAC transform and its polish.
+
+use std::time::Duration;
+
+use nalgebra::{Isometry3, Point3};
+
+use super::config::GlobalConfig;
+use super::features::Features;
+use super::matching::{self, Correspondence};
+use super::{polish, ransac};
+use crate::stopwatch::Stopwatch;
+
+/// RANSAC found no model: fewer than 3 correspondences, or no sample passed the checks.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error("no transform: {correspondences} correspondences and no consistent sample")]
+pub struct NoModel {
+    /// Reciprocal correspondences found.
+    pub correspondences: usize,
+}
+
+/// Wall time of steps 5-7.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EstimateTiming {
+    /// Step 5.
+    pub matching: Duration,
+    /// Step 6.
+    pub ransac: Duration,
+    /// Step 7.
+    pub polish: Duration,
+}
+
+impl EstimateTiming {
+    /// Sum of the three steps.
+    pub fn total(&self) -> Duration {
+        self.matching + self.ransac + self.polish
+    }
+}
+
+/// The transform steps 5-7 found and what supports it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Estimate {
+    /// Maps SOURCE points into the TARGET frame (after step 7).
+    pub transform: Isometry3<f64>,
+    /// The RANSAC + Umeyama transform before the polish.
+    pub coarse_transform: Isometry3<f64>,
+    /// Reciprocal descriptor correspondences RANSAC started from.
+    pub matches: Vec<Correspondence>,
+    /// Indices into `matches` of the RANSAC inliers.
+    pub inliers: Vec<usize>,
+    /// Samples RANSAC drew.
+    pub ransac_iterations: usize,
+    /// Time per step.
+    pub timing: EstimateTiming,
+}
+
+impl Estimate {
+    /// Share of the correspondences that are inliers, in [0, 1].
+    pub fn inlier_ratio(&self) -> f64 {
+        self.inliers.len() as f64 / self.matches.len() as f64
+    }
+
+    /// The inlier correspondences themselves.
+    pub fn inlier_matches(&self) -> Vec<Correspondence> {
+        self.inliers.iter().map(|&i| self.matches[i]).collect()
+    }
+}
+
+/// Steps 5-7: the transform mapping `source` into the frame of `target`.
+pub fn estimate(source: &Features, target: &Features, config: &GlobalConfig) -> Result<Estimate, NoModel> {
+    let mut timing = EstimateTiming::default();
+    let mut watch = Stopwatch::start();
+    let matches = matching::reciprocal_matches(&source.descriptors, &target.descriptors, config.matching.k);
+    timing.matching = watch.lap();
+    let (src, tgt) = keypoint_pairs(source, target, &matches);
+    let model = ransac::ransac(&src, &tgt, &config.ransac);
+    timing.ransac = watch.lap();
+    let model = model.ok_or(NoModel { correspondences: matches.len() })?;
+    let transform = polish::polish(&source.surfels, &target.surfels, &model.transform, &config.polish);
+    timing.polish = watch.lap();
+    Ok(Estimate {
+        transform,
+        coarse_transform: model.transform,
+        matches,
+        inliers: model.inliers,
+        ransac_iterations: model.iterations,
+        timing,
+    })
+}
+
+/// The keypoint positions each correspondence pairs, source and target, in double precision.
+pub fn keypoint_pairs(
+    source: &Features,
+    target: &Features,
+    matches: &[Correspondence],
+) -> (Vec<Point3<f64>>, Vec<Point3<f64>>) {
+    matches.iter().map(|c| (source.keypoint(c.source).cast(), target.keypoint(c.target).cast())).unzip()
+}
