@@ -200,6 +200,30 @@ pub enum FeatureError {
     NoTime,
 }
 
+/// Which extractor made a scan's features.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FeatureKind {
+    /// Ring smoothness (eq. 1): the scan has a ring channel.
+    #[default]
+    Rings,
+    /// Voxel shape ([`super::voxel_features`]): no ring channel (solid-state, unordered points).
+    VoxelShape,
+}
+
+/// The features of a scan, from its rings when it has a ring channel ([`extract`]) and from the
+/// shape of its voxels when it has none ([`super::voxel_features::extract`]).
+pub fn extract_any(
+    scan: &PointCloud,
+    period: f32,
+    config: &FeatureConfig,
+) -> Result<(Features, FeatureKind), FeatureError> {
+    if scan.ring.is_none() {
+        return Ok((super::voxel_features::extract(scan, period, config), FeatureKind::VoxelShape));
+    }
+    Ok((extract(scan, period, config)?, FeatureKind::Rings))
+}
+
 /// Extracts edge and plane features from a scan with ring and time channels, thinned to one per
 /// voxel of `edge_voxel` / `plane_voxel`; `period` is the sweep duration in seconds, which turns
 /// point times into sweep phases for distortion compensation.

@@ -26,6 +26,7 @@ pub mod motion_model;
 pub mod pipeline;
 pub mod solver;
 pub mod stats;
+pub mod voxel_features;
 
 use cloud::PointCloud;
 use cloud::stopwatch::Stopwatch;
@@ -74,6 +75,8 @@ pub struct Frame {
     /// True when even the best fit matched too few features to trust: the scan's features were
     /// kept out of the map and the next scan re-localises.
     pub lost: bool,
+    /// Which extractor made the features: rings, or voxel shapes for scans without rings.
+    pub feature_kind: features::FeatureKind,
     /// The keyframe this scan made, if any.
     pub keyframe: Option<Keyframe>,
     /// Where the time went.
@@ -129,11 +132,17 @@ const SAME_FIT_RANGE_M: f64 = 10.0;
 
 impl Located {
     /// Takes `estimate` (started from `start`) when it found another pose than the current fit
-    /// and matches more features, by `margin` (a fraction) at least. Two starts that converged to
-    /// the same pose differ in a feature or two by chance; the prediction's fit is kept then.
-    fn keep_better(&mut self, estimate: solver::Estimate, start: Start, margin: f64) {
+    /// and `agreement` scores it higher, by `margin` (a fraction) at least. Two starts that
+    /// converged to the same pose differ by chance; the prediction's fit is kept then.
+    fn keep_better(
+        &mut self,
+        estimate: solver::Estimate,
+        start: Start,
+        margin: f64,
+        agreement: impl Fn(&Isometry3<f64>) -> f64,
+    ) {
         let apart = motion_model::displacement(&(self.estimate.pose.inverse() * estimate.pose), SAME_FIT_RANGE_M);
-        if apart > SAME_FIT_M && matches(&estimate) as f64 > (1.0 + margin) * matches(&self.estimate) as f64 {
+        if apart > SAME_FIT_M && agreement(&estimate.pose) > (1.0 + margin) * agreement(&self.estimate.pose) {
             self.estimate = estimate;
             self.start = start;
         }
@@ -149,6 +158,19 @@ fn matches(estimate: &solver::Estimate) -> usize {
 /// The share of a scan's features a fit matched.
 fn share(estimate: &solver::Estimate, raw: &Features) -> f64 {
     matches(estimate) as f64 / (raw.edges.len() + raw.planes.len()).max(1) as f64
+}
+
+/// Fewest RANSAC inliers a re-localisation needs.
+const RELOCALISE_MIN_INLIERS: usize = 15;
+/// Smallest share of the scan a re-localisation must place on the map.
+const RELOCALISE_MIN_FITNESS: f64 = 0.5;
+
+/// Runs `f`, logging its wall time at debug level.
+fn timed_debug<T>(what: &str, f: impl FnOnce() -> T) -> T {
+    let watch = Stopwatch::start();
+    let out = f();
+    tracing::debug!("{what}: {:.1} ms", watch.elapsed_ms());
+    out
 }
 
 /// Why a scan could not be registered.
@@ -230,8 +252,8 @@ impl Odometry {
         &self.config
     }
 
-    /// Registers one scan (with ring and per-point time channels) swept from `stamp` (seconds)
-    /// and returns its pose.
+    /// Registers one scan swept from `stamp` (seconds) and returns its pose. With a ring channel
+    /// the scan needs per-point times too; without one, its features come from voxel shapes.
     pub fn register(&mut self, scan: &PointCloud, stamp: f64) -> Result<Frame, OdometryError> {
         self.advance_clock(stamp);
         // The stages' parallel loops hand their work to rayon's pool and wait for it: called from
@@ -260,7 +282,7 @@ impl Odometry {
     /// [`Odometry::register`] on a worker of rayon's pool.
     fn register_on_pool(&mut self, scan: &PointCloud) -> Result<Frame, OdometryError> {
         let mut watch = Stopwatch::start();
-        let raw = features::extract(scan, self.config.scan_period, &self.config.features)?;
+        let (raw, feature_kind) = features::extract_any(scan, self.config.scan_period, &self.config.features)?;
         let features_ms = watch.lap_ms();
         let mut located = self.locate(&raw);
         if let Some(first) = self.first.take() {
@@ -291,6 +313,7 @@ impl Odometry {
             conditioning: located.estimate.min_eigen_ratio,
             start: located.start,
             lost: located.lost,
+            feature_kind,
             keyframe,
         })
     }
@@ -314,8 +337,8 @@ impl Odometry {
         let predicted = self.pose * cloud::se3::exp(&(self.motion.0 * self.sweeps));
         let mut best =
             Located { estimate: self.estimate(raw, predicted), predicted, start: Start::Prediction, lost: false };
-        // Without a measured velocity (the second scan, after a gap or a lost scan) every start
-        // is tried: there is no history to judge the prediction's fit against.
+        // Without a measured velocity (the second scan, after a gap) the coarse start is tried
+        // too: the prediction is a guess of no motion.
         let untrusted = self.since_reset < 2;
         // A degenerate fit matches few features by nature (a corridor), and another start could
         // only slide along the direction the prior holds.
@@ -328,14 +351,16 @@ impl Odometry {
         // The coarse alignment's basin is wide but its voxels are blunt: along a street it can
         // settle a metre off where the prediction was right, hence the comparison.
         if let Some(start) = self.coarse(raw, &predicted) {
-            best.keep_better(self.estimate(raw, start), Start::Coarse, margin);
+            best.keep_better(self.estimate(raw, start), Start::Coarse, margin, |p| self.agreement(raw, p));
         }
-        let still_suspect = untrusted || self.health.is_suspect(share(&best.estimate, raw));
+        // Global registration only where a history says the fit is still wrong: a scan against a
+        // one-scan map (the second) finds spurious places that match as many features.
+        let still_suspect = self.health.is_suspect(share(&best.estimate, raw));
         if still_suspect
             && self.health.config().relocalise
-            && let Some(start) = self.relocalise(raw)
+            && let Some(start) = timed_debug("relocalise", || self.relocalise(raw))
         {
-            best.keep_better(self.estimate(raw, start), Start::Global, margin);
+            best.keep_better(self.estimate(raw, start), Start::Global, margin, |p| self.agreement(raw, p));
         }
         best.lost = self.health.is_suspect(share(&best.estimate, raw));
         best
@@ -350,9 +375,22 @@ impl Odometry {
         coarse::align(&features, &map, predicted, &config)
     }
 
-    /// The scan's features placed in the map without a guess (global registration).
-    fn relocalise(&self, _raw: &Features) -> Option<Isometry3<f64>> {
-        None
+    /// The scan placed in the local map without a guess: FPFH + RANSAC ([`cloud::global`]) of the
+    /// scan's features onto the maps' points.
+    fn relocalise(&self, raw: &Features) -> Option<Isometry3<f64>> {
+        let source = PointCloud::from_points(self.compensated(raw).iter().map(|f| f.point).collect());
+        let target = PointCloud::from_points(self.map_points());
+        let found = cloud::global::align(&source, &target, &cloud::global::GlobalConfig::scan()).ok()?;
+        // A transform that a handful of descriptor pairs agree on, or that leaves most of the scan
+        // off the map, is a guess, not a place (cloud::global's tests pass with 15 and 0.5).
+        (found.inliers >= RELOCALISE_MIN_INLIERS && found.fitness >= RELOCALISE_MIN_FITNESS).then_some(found.transform)
+    }
+
+    /// [`solver::agreement`] of the features (stage-1 compensated) at `pose`.
+    fn agreement(&self, raw: &Features, pose: &Isometry3<f64>) -> f64 {
+        let edges = deskew::compensate(&raw.edges, &self.motion);
+        let planes = deskew::compensate(&raw.planes, &self.motion);
+        solver::agreement(&edges, &planes, &self.edge_map, &self.plane_map, pose, &self.config.solver)
     }
 
     /// Edges and planes compensated with the predicted sweep motion (stage 1).
@@ -373,7 +411,7 @@ impl Odometry {
     /// in. A run that starts moving (a recording cut mid-drive, a robot turning) would keep that
     /// distortion in the map's frame; once the second scan measured the motion, the maps are made
     /// again from the first scan's features compensated with it and the second scan is fitted
-    /// again.
+    /// again, and the new maps are kept when the second scan agrees better with them.
     /// A start from rest (within [`OdometryConfig::deskew_tolerance`]) leaves the maps as they are.
     fn recompensate_first(&mut self, first: &Features, raw: &Features, fit: solver::Estimate) -> solver::Estimate {
         let pose = fit.pose;
@@ -381,14 +419,25 @@ impl Odometry {
         if motion.difference_at(&SweepMotion::zero(), 10.0) <= self.config.deskew_tolerance {
             return fit;
         }
-        self.edge_map = FeatureMap::new(self.config.edge_map.clone());
-        self.plane_map = FeatureMap::new(self.config.plane_map.clone());
+        let before = self.agreement(raw, &pose);
+        let mut edge_map = FeatureMap::new(self.config.edge_map.clone());
+        let mut plane_map = FeatureMap::new(self.config.plane_map.clone());
         let placed = |f: &features::Feature| (motion.compensate(&f.point, f.phase), ScanLine::new(0, f.ring));
-        self.edge_map.insert(first.edges.iter().map(placed), &Isometry3::identity());
-        self.plane_map.insert(first.planes.iter().map(placed), &Isometry3::identity());
-        self.edge_map.crop_and_rebuild(&Point3::origin());
-        self.plane_map.crop_and_rebuild(&Point3::origin());
-        self.estimate(raw, pose)
+        edge_map.insert(first.edges.iter().map(placed), &Isometry3::identity());
+        plane_map.insert(first.planes.iter().map(placed), &Isometry3::identity());
+        edge_map.crop_and_rebuild(&Point3::origin());
+        plane_map.crop_and_rebuild(&Point3::origin());
+        let old_edges = std::mem::replace(&mut self.edge_map, edge_map);
+        let old_planes = std::mem::replace(&mut self.plane_map, plane_map);
+        let refit = self.estimate(raw, pose);
+        // A recording published already compensated (KITTI) is distorted by compensating it
+        // again: the second scan then agrees less with the first, and the maps stay as they were.
+        if self.agreement(raw, &refit.pose) > before {
+            return refit;
+        }
+        self.edge_map = old_edges;
+        self.plane_map = old_planes;
+        fit
     }
 
     /// Stage 2 and the local map: the sweep's motion is re-estimated from the new pose, corrects
@@ -432,11 +481,10 @@ impl Odometry {
     }
 
     /// A lost scan: its best pose is reported, but its features stay out of the map (they would
-    /// corrupt it), the velocity is kept, and the next scan is located from every start.
+    /// corrupt it) and the velocity is kept for the next scan's prediction.
     fn skip(&mut self, pose: Isometry3<f64>) -> Option<Keyframe> {
         self.pose = pose;
         self.frames += 1;
-        self.since_reset = 1;
         None
     }
 

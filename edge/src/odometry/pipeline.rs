@@ -98,6 +98,12 @@ impl Tuning {
 }
 
 /// How recordings are read for the odometry: rings and per-point times derived where missing.
+///
+/// Rings come from the point order where it is ring-major (exact and cheap, KITTI's layout) and
+/// are clustered from elevations otherwise: on a 16-beam sensor voxel shapes
+/// ([`super::voxel_features`], what a scan without any ring channel gets) see ring traces as lines
+/// and lose the warehouse (0.55 m ATE against 0.16 m every 2nd scan, 6.3 m against 0.04 m every
+/// 5th).
 pub fn recording_options(topic: Option<String>, config: &OdometryConfig) -> RecordingOptions {
     RecordingOptions {
         topic,

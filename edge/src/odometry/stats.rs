@@ -68,6 +68,7 @@ pub struct RunStats {
     keyframes: usize,
     conditioning: Vec<f64>,
     recoveries: Recoveries,
+    voxel_shape_scans: usize,
 }
 
 /// How often the prediction's fit was not the one kept, and how often no fit could be trusted.
@@ -107,6 +108,8 @@ pub struct RunSummary {
     pub keyframes: usize,
     /// Scans located from another start than the prediction, and scans judged lost.
     pub recoveries: Recoveries,
+    /// Scans without a ring channel, whose features came from voxel shapes instead of rings.
+    pub voxel_shape_scans: usize,
 }
 
 impl RunStats {
@@ -124,6 +127,7 @@ impl RunStats {
         self.recoveries.coarse += usize::from(frame.start == super::Start::Coarse);
         self.recoveries.global += usize::from(frame.start == super::Start::Global);
         self.recoveries.lost += usize::from(frame.lost);
+        self.voxel_shape_scans += usize::from(frame.feature_kind == super::features::FeatureKind::VoxelShape);
         if self.ms.len() > 1 {
             self.conditioning.push(frame.conditioning);
         }
@@ -153,6 +157,7 @@ impl RunStats {
             conditioning: Low::of(&self.conditioning),
             keyframes: self.keyframes,
             recoveries: self.recoveries,
+            voxel_shape_scans: self.voxel_shape_scans,
         }
     }
 }

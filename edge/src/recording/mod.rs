@@ -337,6 +337,7 @@ pub struct Recording {
     kind: RecordingKind,
     topic: Option<String>,
     options: RecordingOptions,
+    channels: ChannelDeriver,
     source: Source,
     done: bool,
 }
@@ -369,7 +370,8 @@ pub fn open(input: &Path, options: &RecordingOptions) -> Result<Recording, Recor
             (Source::Mcap(mcap_file::McapSource::open(input, &topic).map_err(fail)?), Some(topic))
         }
     };
-    Ok(Recording { path: input.to_owned(), kind, topic, options: options.clone(), source, done: false })
+    let channels = ChannelDeriver::new(options.clone());
+    Ok(Recording { path: input.to_owned(), kind, topic, options: options.clone(), channels, source, done: false })
 }
 
 /// The topics of a bag or MCAP file (empty for a directory). A file without its index or summary
@@ -422,24 +424,64 @@ impl Recording {
     }
 
     /// The common steps: drop invalid points, derive missing channels.
-    fn finish(&self, raw: RawScan) -> Scan {
+    fn finish(&mut self, raw: RawScan) -> Scan {
         let RawScan { mut cloud, stamp, index, mut dropped } = raw;
         if self.options.drop_origin_points {
             dropped += drop_origin_points(&mut cloud);
         }
-        derive_channels(&mut cloud, &self.options);
+        self.channels.derive(&mut cloud);
         Scan { cloud, stamp, index, dropped }
     }
 }
 
 /// Fills the ring and time channels a cloud lacks as `options` say (channels it has are kept): what
-/// every scan of a recording goes through, for clouds that come from elsewhere.
+/// every scan of a recording goes through, for clouds that come from elsewhere. For a sequence of
+/// scans, [`ChannelDeriver`] clusters the beams once.
 pub fn derive_channels(cloud: &mut PointCloud, options: &RecordingOptions) {
-    if cloud.ring.is_none() {
-        cloud.ring = rings::derive_rings(cloud, &options.rings);
+    ChannelDeriver::new(options.clone()).derive(cloud);
+}
+
+/// [`derive_channels`] scan after scan of one sensor: where rings are clustered from elevations,
+/// the beams found in the first scan that needs them are kept for the rest (a sensor's beams do
+/// not move), so the clustering runs once and not per scan.
+#[derive(Clone, Debug)]
+pub struct ChannelDeriver {
+    options: RecordingOptions,
+    beams: Option<rings::Beams>,
+}
+
+impl ChannelDeriver {
+    /// Nothing clustered yet.
+    pub fn new(options: RecordingOptions) -> Self {
+        ChannelDeriver { options, beams: None }
     }
-    if let (None, TimeModel::Azimuth { period_s, spin }) = (&cloud.time, options.times) {
-        cloud.time = Some(times_from_azimuth(&cloud.points, period_s, spin));
+
+    /// Fills the channels `cloud` lacks.
+    pub fn derive(&mut self, cloud: &mut PointCloud) {
+        if cloud.ring.is_none() {
+            cloud.ring = self.rings(cloud);
+        }
+        if let (None, TimeModel::Azimuth { period_s, spin }) = (&cloud.time, self.options.times) {
+            cloud.time = Some(times_from_azimuth(&cloud.points, period_s, spin));
+        }
+    }
+
+    /// Rings of a cloud without them: from the point order when ring-major, else from the beams.
+    fn rings(&mut self, cloud: &PointCloud) -> Option<Vec<u16>> {
+        let clustering = match &self.options.rings {
+            RingModel::Clustered(options) => options.clone(),
+            RingModel::Auto => match rings::scan_order_rings(&cloud.points) {
+                Some(rings) => return Some(rings),
+                None => ClusterOptions::default(),
+            },
+            other => return rings::derive_rings(cloud, other),
+        };
+        if let Some(beams) = &self.beams {
+            return Some(beams.assign(&cloud.points));
+        }
+        let clusters = cluster_rings(&cloud.points, &clustering);
+        self.beams = Some(rings::Beams::of(&clusters));
+        Some(clusters.ring)
     }
 }
 

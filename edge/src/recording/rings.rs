@@ -203,6 +203,31 @@ pub fn cluster_rings(points: &[Point3<f32>], options: &ClusterOptions) -> RingCl
     RingClusters { ring, elevations_deg: centers.iter().map(|&c| c as f32).collect(), beam_origin_m: h as f32 }
 }
 
+/// A sensor's beams as [`cluster_rings`] found them: what every later scan of the same sensor
+/// is assigned to, one elevation per point (a few milliseconds where clustering takes ~100).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Beams {
+    /// Beam elevations, degrees, ascending.
+    centers: Vec<f64>,
+    /// Height of the beams' origin above the cloud's, metres.
+    origin: f64,
+}
+
+impl Beams {
+    /// The beams of a clustering.
+    pub fn of(clusters: &RingClusters) -> Self {
+        Beams {
+            centers: clusters.elevations_deg.iter().map(|&e| f64::from(e)).collect(),
+            origin: f64::from(clusters.beam_origin_m),
+        }
+    }
+
+    /// The ring of each point: its nearest beam in elevation.
+    pub fn assign(&self, points: &[Point3<f32>]) -> Vec<u16> {
+        points.iter().map(|p| nearest(&self.centers, elevation_deg(p, self.origin))).collect()
+    }
+}
+
 /// Elevation of `p` in degrees, seen from a point `h` metres above the origin.
 fn elevation_deg(p: &Point3<f32>, h: f64) -> f64 {
     let (x, y, z) = (f64::from(p.x), f64::from(p.y), f64::from(p.z));

@@ -254,7 +254,8 @@ pub(super) fn prepared(case: &Case) -> Vec<SourceScan> {
     let options = pipeline::recording_options(None, &config);
     let mut scans = case.scans.clone();
     if case.derive_channels {
-        scans.iter_mut().for_each(|s| recording::derive_channels(&mut s.cloud, &options));
+        let mut channels = recording::ChannelDeriver::new(options);
+        scans.iter_mut().for_each(|s| channels.derive(&mut s.cloud));
     }
     scans
 }

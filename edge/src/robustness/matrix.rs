@@ -118,7 +118,7 @@ fn spin(deg_per_s: f64, scans: usize) -> Recipe {
 }
 
 /// KITTI 00 and the warehouse with shuffled points, channels derived as for a recording; and
-/// KITTI 00 shuffled as the bare points, which the odometry itself cannot take today.
+/// KITTI 00 shuffled as the bare points, which the odometry registers with voxel-shape features.
 fn shuffled_cases(kitti: &Path, short: Option<usize>) -> Vec<Planned> {
     let kitti_all = Box::new(Recipe::Kitti { dir: kitti.to_owned(), start: 0, every: 1 });
     let shuffle = |of: Box<Recipe>, derive_channels| Recipe::Shuffled { of, seed: 7, derive_channels };

@@ -94,10 +94,11 @@ pub struct Outcome {
     pub verdict: Result<Verdict, String>,
     /// Median wall time per scan, milliseconds, when it ran.
     pub ms_per_scan: Option<f64>,
-    /// Scans on which the odometry declared itself lost. None until our odometry counts them
+    /// Scans on which the odometry declared itself lost. None where it did not run
     /// (issue 13); KISS-ICP does not say.
     pub lost: Option<usize>,
-    /// Times the odometry recovered from being lost. None until our odometry counts them.
+    /// Scans located from a coarse or global alignment instead of the prediction. None where it
+    /// did not run.
     pub recoveries: Option<usize>,
     /// The estimated poses (odometry frame), empty when it did not run.
     pub poses: Vec<Isometry3<f64>>,
@@ -130,9 +131,11 @@ pub fn run_ours(case: &Case, criterion: &HoldCriterion) -> Outcome {
         Err(reason) => return Outcome::failed(reason),
     };
     let verdict = judge(&case.truth(), &pass.estimate.poses, criterion).map_err(|e| chain(&e));
-    // lost and recoveries: from the odometry's stats once it counts them (issue 13).
-    let ms_per_scan = Some(pass.stats.summary().ms_per_frame.median);
-    Outcome { verdict, ms_per_scan, lost: None, recoveries: None, poses: pass.estimate.poses }
+    let summary = pass.stats.summary();
+    let r = summary.recoveries;
+    let ms_per_scan = Some(summary.ms_per_frame.median);
+    let (lost, recoveries) = (Some(r.lost), Some(r.coarse + r.global));
+    Outcome { verdict, ms_per_scan, lost, recoveries, poses: pass.estimate.poses }
 }
 
 /// An error and its sources, `outer: inner: ...`.
