@@ -231,6 +231,12 @@ pub fn register<S: Borrow<SourceScan>>(
         let frame = odometry
             .register(&scan.cloud, scan.stamp)
             .map_err(|source| PipelineError::Register { scan: scan.index, source })?;
+        if frame.lost {
+            tracing::warn!(
+                "scan {}: lost (no start fitted the map well; kept out of the map, pose from the best fit)",
+                scan.index
+            );
+        }
         pass.stats.add(&frame, watch.elapsed_ms());
         pass.cpu_ms.push(thread_cpu_ms() - cpu);
         pass.estimate.poses.push(frame.pose);
