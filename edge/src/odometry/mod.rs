@@ -1,10 +1,17 @@
 //! F-LOAM odometry (Wang et al., IROS 2021, section III) with the paper's two-stage distortion
 //! compensation. One call per scan, in [`Odometry::register`]:
 //!
-//! 1. features: per-ring smoothness (eq. 1), 6 sectors, edges and planes ([`features`]);
+//! 1. features: per-ring smoothness (eq. 1), 6 sectors, edges and planes ([`features`]); for
+//!    scans without rings, the shape of each voxel's points ([`voxel_features`]);
 //! 2. stage 1: constant-velocity motion from the last frame (eq. 2) moves each feature to the sweep
 //!    end by its own timestamp (eq. 3) ([`deskew`]);
-//! 3. pose: scan-to-local-map point-to-line / point-to-plane matching (eq. 4) ([`solver`]);
+//! 3. pose: scan-to-local-map point-to-line / point-to-plane matching (eq. 4) ([`solver`]) from the
+//!    constant-velocity prediction; the fit is judged against the recent ones ([`health`]), and
+//!    where it is suspect, or the prediction has no measured velocity behind it (the second scan,
+//!    after a gap), it is fitted again from a coarse alignment ([`coarse`], its reach KISS-ICP's
+//!    adaptive threshold, [`motion_model`]) and, still suspect, from a global re-localisation
+//!    ([`cloud::global`]); the fit agreeing best with the map wins, and a scan no start fits is
+//!    lost: reported, but kept out of the map;
 //! 4. stage 2: the distortion is recomputed with the estimated motion and the features are corrected
 //!    again before they enter the map;
 //! 5. local map: edge and plane voxel maps cropped around the robot, k-d trees ([`local_map`]);
