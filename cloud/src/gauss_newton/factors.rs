@@ -19,6 +19,14 @@ pub struct SignedDistance {
     pub weight: f64,
 }
 
+impl SignedDistance {
+    /// The residual `e` with the point placed by `pose`.
+    #[inline(always)]
+    pub fn at(&self, pose: &Isometry3<f64>) -> f64 {
+        self.normal.dot(&(pose * self.source - self.anchor))
+    }
+}
+
 /// [`SignedDistance`] terms at `pose` under a Huber kernel: weight `w · min(1, δ_H / |e|)`.
 #[derive(Clone, Copy, Debug)]
 pub struct SignedDistanceFactor {
@@ -41,8 +49,7 @@ impl Factor for SignedDistanceFactor {
     /// `∂(T exp(δ) p)/∂δ = R [I, −[p]×]`, so with `m = Rᵀ n` the row is `J = [mᵀ, (p × m)ᵀ]`.
     #[inline(always)]
     fn add(&self, r: &SignedDistance, eq: &mut NormalEquations<LeverArm>) {
-        let w = self.pose * r.source;
-        let e = r.normal.dot(&(w - r.anchor));
+        let e = r.at(&self.pose);
         let robust = if e.abs() <= self.huber { 1.0 } else { self.huber / e.abs() };
         let m = self.inverse_rotation * r.normal;
         let rot = r.source.coords.cross(&m);

@@ -7,8 +7,6 @@ use cloud::registration::{self, GaussianCloud, Method, RegistrationConfig, Voxel
 use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
-use super::features::Feature;
-
 /// Settings of the coarse alignment.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
@@ -45,15 +43,14 @@ impl CoarseConfig {
     }
 }
 
-/// The features (already in the sweep-end frame) aligned to the map points from `initial`, or
-/// `None` when either side is too small or degenerate to register.
+/// The scan's feature points (already in the sweep-end frame) aligned to the map points from
+/// `initial`, or `None` when either side is too small or degenerate to register.
 pub fn align(
-    features: &[Feature],
+    source: &[Point3<f32>],
     map: &[Point3<f32>],
     initial: &Isometry3<f64>,
     config: &CoarseConfig,
 ) -> Option<Isometry3<f64>> {
-    let source: Vec<Point3<f32>> = features.iter().map(|f| f.point).collect();
     if source.len() < config.neighbours || map.len() < config.neighbours {
         return None;
     }
@@ -67,7 +64,7 @@ pub fn align(
         voxel_search: VoxelSearch::Direct7,
         ..RegistrationConfig::default()
     };
-    let source = GaussianCloud::new(&source, config.neighbours);
+    let source = GaussianCloud::new(source, config.neighbours);
     let target = GaussianCloud::new(map, config.neighbours);
     let result = registration::align_gaussians(&source, &target, initial, Method::Vgicp, &registration).ok()?;
     (result.inliers >= config.neighbours).then_some(result.transform)

@@ -19,6 +19,12 @@ impl SweepMotion {
         SweepMotion(cloud::se3::log(&(previous.inverse() * current)))
     }
 
+    /// The motion over one sweep when `sweeps` sweeps passed between two scan-end poses (more than
+    /// one where scans were dropped): the constant velocity spreads it evenly.
+    pub fn per_sweep(previous: &Isometry3<f64>, current: &Isometry3<f64>, sweeps: f64) -> Self {
+        SweepMotion(Self::between(previous, current).0 / sweeps)
+    }
+
     /// Eq. 3: the transform from the sensor frame at sweep phase `s` to the frame at the sweep end,
     /// `exp((s − 1) ξ)`.
     pub fn to_end(&self, phase: f32) -> Isometry3<f64> {

@@ -36,7 +36,7 @@ pub mod stats;
 pub mod voxel_features;
 
 use cloud::PointCloud;
-use cloud::stopwatch::Stopwatch;
+use cloud::stopwatch::{Stopwatch, millis, timed};
 use nalgebra::{Isometry3, Point3};
 use serde::Serialize;
 
@@ -80,7 +80,7 @@ pub struct Frame {
     /// prediction's fit was suspect or had no measured velocity behind it.
     pub start: Start,
     /// True when even the best fit matched too few features to trust: the scan's features were
-    /// kept out of the map and the next scan re-localises.
+    /// kept out of the map.
     pub lost: bool,
     /// Which extractor made the features: rings, or voxel shapes for scans without rings.
     pub feature_kind: features::FeatureKind,
@@ -126,9 +126,9 @@ struct Located {
     lost: bool,
 }
 
-/// How many more features (as a fraction) a fit from another start must match to replace the
-/// prediction's: where the scene leaves a direction unconstrained (a corridor) fits slid along it
-/// match about as many, and the prediction is the better guess there.
+/// How much higher (as a fraction) a fit from another start must score in agreement with the map
+/// to replace the prediction's: where the scene leaves a direction unconstrained (a corridor) fits
+/// slid along it score about as well, and the prediction is the better guess there.
 const RECOVERY_MARGIN: f64 = 0.1;
 
 /// Two fits are the same pose when they place a point [`SAME_FIT_RANGE_M`] away within this (m):
@@ -156,6 +156,24 @@ impl Located {
     }
 }
 
+/// A scan's features compensated with the predicted sweep motion (stage 1), made once for the
+/// starts and comparisons of one scan.
+struct Stage1 {
+    edges: Vec<features::Feature>,
+    planes: Vec<features::Feature>,
+}
+
+impl Stage1 {
+    fn of(raw: &Features, motion: &SweepMotion) -> Self {
+        Stage1 { edges: deskew::compensate(&raw.edges, motion), planes: deskew::compensate(&raw.planes, motion) }
+    }
+
+    /// Edges and planes together, as points to register.
+    fn points(&self) -> Vec<Point3<f32>> {
+        self.edges.iter().chain(&self.planes).map(|f| f.point).collect()
+    }
+}
+
 /// Correspondences of a fit's last search: the better a pose, the more features find their line
 /// or plane within the neighbour radius.
 fn matches(estimate: &solver::Estimate) -> usize {
@@ -171,14 +189,6 @@ fn share(estimate: &solver::Estimate, raw: &Features) -> f64 {
 const RELOCALISE_MIN_INLIERS: usize = 15;
 /// Smallest share of the scan a re-localisation must place on the map.
 const RELOCALISE_MIN_FITNESS: f64 = 0.5;
-
-/// Runs `f`, logging its wall time at debug level.
-fn timed_debug<T>(what: &str, f: impl FnOnce() -> T) -> T {
-    let watch = Stopwatch::start();
-    let out = f();
-    tracing::debug!("{what}: {:.1} ms", watch.elapsed_ms());
-    out
-}
 
 /// Why a scan could not be registered.
 #[derive(Debug, thiserror::Error)]
@@ -303,8 +313,7 @@ impl Odometry {
             start = ?located.start,
             lost = located.lost,
             correction = motion_model::displacement(&(located.predicted.inverse() * estimate.pose), 50.0),
-            matched = (estimate.edge_matches + estimate.plane_matches) as f64
-                / (raw.edges.len() + raw.planes.len()).max(1) as f64,
+            matched = share(estimate, &raw),
             iterations = estimate.iterations,
             "located"
         );
@@ -328,7 +337,8 @@ impl Odometry {
     /// Stage 1 and the pose, from the constant-velocity prediction (eq. 2); where that fit is
     /// suspect or the prediction has nothing behind it, also from a coarse alignment and, failing
     /// that, from a global re-localisation: each start is refined by the feature fit and the fit
-    /// matching the most features wins. The first scan defines the odometry frame.
+    /// agreeing best with the map wins ([`solver::agreement`]). The first scan defines the
+    /// odometry frame.
     fn locate(&self, raw: &Features) -> Located {
         if self.frames == 0 {
             let estimate = solver::Estimate {
@@ -353,21 +363,24 @@ impl Odometry {
         if !untrusted && (degenerate || !self.health.is_suspect(share(&best.estimate, raw))) {
             return best;
         }
-        // Against a guess of no motion, any start that matches more features is better.
+        // Against a guess of no motion, any start that agrees better is better.
         let margin = if untrusted { 0.0 } else { RECOVERY_MARGIN };
+        let stage1 = Stage1::of(raw, &self.motion);
+        let agreement = |pose: &Isometry3<f64>| self.agreement(&stage1, pose);
         // The coarse alignment's basin is wide but its voxels are blunt: along a street it can
         // settle a metre off where the prediction was right, hence the comparison.
-        if let Some(start) = self.coarse(raw, &predicted) {
-            best.keep_better(self.estimate(raw, start), Start::Coarse, margin, |p| self.agreement(raw, p));
+        if let Some(start) = self.coarse(&stage1, &predicted) {
+            best.keep_better(self.estimate(raw, start), Start::Coarse, margin, agreement);
         }
         // Global registration only where a history says the fit is still wrong: a scan against a
         // one-scan map (the second) finds spurious places that match as many features.
         let still_suspect = self.health.is_suspect(share(&best.estimate, raw));
-        if still_suspect
-            && self.health.config().relocalise
-            && let Some(start) = timed_debug("relocalise", || self.relocalise(raw))
-        {
-            best.keep_better(self.estimate(raw, start), Start::Global, margin, |p| self.agreement(raw, p));
+        if still_suspect && self.health.config().relocalise {
+            let (found, took) = timed(|| self.relocalise(&stage1));
+            tracing::debug!("relocalise: {:.1} ms", millis(took));
+            if let Some(start) = found {
+                best.keep_better(self.estimate(raw, start), Start::Global, margin, agreement);
+            }
         }
         best.lost = self.health.is_suspect(share(&best.estimate, raw));
         best
@@ -375,17 +388,15 @@ impl Odometry {
 
     /// The scan's features aligned coarse to fine to the local maps' points from `predicted`,
     /// reaching as far as the prediction's recent errors (3σ, the adaptive gate).
-    fn coarse(&self, raw: &Features, predicted: &Isometry3<f64>) -> Option<Isometry3<f64>> {
-        let features = self.compensated(raw);
-        let map = self.map_points();
+    fn coarse(&self, stage1: &Stage1, predicted: &Isometry3<f64>) -> Option<Isometry3<f64>> {
         let config = self.config.coarse.reaching(3.0 * self.model.sigma());
-        coarse::align(&features, &map, predicted, &config)
+        coarse::align(&stage1.points(), &self.map_points(), predicted, &config)
     }
 
     /// The scan placed in the local map without a guess: FPFH + RANSAC ([`cloud::global`]) of the
     /// scan's features onto the maps' points.
-    fn relocalise(&self, raw: &Features) -> Option<Isometry3<f64>> {
-        let source = PointCloud::from_points(self.compensated(raw).iter().map(|f| f.point).collect());
+    fn relocalise(&self, stage1: &Stage1) -> Option<Isometry3<f64>> {
+        let source = PointCloud::from_points(stage1.points());
         let target = PointCloud::from_points(self.map_points());
         let found = cloud::global::align(&source, &target, &cloud::global::GlobalConfig::scan()).ok()?;
         // A transform that a handful of descriptor pairs agree on, or that leaves most of the scan
@@ -393,18 +404,9 @@ impl Odometry {
         (found.inliers >= RELOCALISE_MIN_INLIERS && found.fitness >= RELOCALISE_MIN_FITNESS).then_some(found.transform)
     }
 
-    /// [`solver::agreement`] of the features (stage-1 compensated) at `pose`.
-    fn agreement(&self, raw: &Features, pose: &Isometry3<f64>) -> f64 {
-        let edges = deskew::compensate(&raw.edges, &self.motion);
-        let planes = deskew::compensate(&raw.planes, &self.motion);
-        solver::agreement(&edges, &planes, &self.edge_map, &self.plane_map, pose, &self.config.solver)
-    }
-
-    /// Edges and planes compensated with the predicted sweep motion (stage 1).
-    fn compensated(&self, raw: &Features) -> Vec<features::Feature> {
-        let mut features = deskew::compensate(&raw.edges, &self.motion);
-        features.extend(deskew::compensate(&raw.planes, &self.motion));
-        features
+    /// [`solver::agreement`] of the stage-1 features at `pose`.
+    fn agreement(&self, stage1: &Stage1, pose: &Isometry3<f64>) -> f64 {
+        solver::agreement(&stage1.edges, &stage1.planes, &self.edge_map, &self.plane_map, pose, &self.config.solver)
     }
 
     /// The points of both local maps.
@@ -422,11 +424,12 @@ impl Odometry {
     /// A start from rest (within [`OdometryConfig::deskew_tolerance`]) leaves the maps as they are.
     fn recompensate_first(&mut self, first: &Features, raw: &Features, fit: solver::Estimate) -> solver::Estimate {
         let pose = fit.pose;
-        let motion = SweepMotion(SweepMotion::between(&Isometry3::identity(), &pose).0 / self.sweeps);
+        let motion = SweepMotion::per_sweep(&Isometry3::identity(), &pose, self.sweeps);
         if motion.difference_at(&SweepMotion::zero(), 10.0) <= self.config.deskew_tolerance {
             return fit;
         }
-        let before = self.agreement(raw, &pose);
+        let stage1 = Stage1::of(raw, &self.motion);
+        let before = self.agreement(&stage1, &pose);
         let mut edge_map = FeatureMap::new(self.config.edge_map.clone());
         let mut plane_map = FeatureMap::new(self.config.plane_map.clone());
         let placed = |f: &features::Feature| (motion.compensate(&f.point, f.phase), ScanLine::new(0, f.ring));
@@ -439,7 +442,7 @@ impl Odometry {
         let refit = self.estimate(raw, pose);
         // A recording published already compensated (KITTI) is distorted by compensating it
         // again: the second scan then agrees less with the first, and the maps stay as they were.
-        if self.agreement(raw, &refit.pose) > before {
+        if self.agreement(&stage1, &refit.pose) > before {
             return refit;
         }
         self.edge_map = old_edges;
@@ -455,7 +458,7 @@ impl Odometry {
         self.motion = if self.frames == 0 {
             SweepMotion::zero()
         } else {
-            SweepMotion(SweepMotion::between(&previous, &self.pose).0 / self.sweeps)
+            SweepMotion::per_sweep(&previous, &self.pose, self.sweeps)
         };
         let corrected = if self.config.deskew { self.motion } else { SweepMotion::zero() };
         let index = self.frames;
@@ -512,7 +515,7 @@ impl Odometry {
         let mut motion = self.motion;
         let mut estimate = solve(&motion, predicted);
         for _ in 1..self.config.deskew_rounds {
-            let mut measured = SweepMotion(SweepMotion::between(&self.pose, &estimate.pose).0 / self.sweeps);
+            let mut measured = SweepMotion::per_sweep(&self.pose, &estimate.pose, self.sweeps);
             measured.0.fixed_rows_mut::<3>(0).copy_from(&motion.0.fixed_rows::<3>(0));
             if motion.difference_at(&measured, 10.0) <= self.config.deskew_tolerance {
                 break;

@@ -60,11 +60,6 @@ impl MotionModel {
         if self.count == 0 { self.config.initial_sigma } else { (self.sum_sq / self.count as f64).sqrt() }
     }
 
-    /// True until a scan that moved was registered from a prediction (since the start or a gap).
-    pub fn untrained(&self) -> bool {
-        self.count == 0
-    }
-
     /// Records one scan: its `predicted` and `estimated` poses and the `motion` since the last scan.
     pub fn observe(&mut self, predicted: &Isometry3<f64>, estimated: &Isometry3<f64>, motion: &Isometry3<f64>) {
         if displacement(motion, self.config.range) < self.config.min_motion {
@@ -104,7 +99,7 @@ mod tests {
         model.observe(&Isometry3::identity(), &Isometry3::translation(5.0, 0.0, 0.0), &Isometry3::identity());
         assert!((model.sigma() - (0.125f64).sqrt()).abs() < 1e-12);
         model.reset();
-        assert!(model.untrained() && model.sigma() == 2.0);
+        assert_eq!(model.sigma(), 2.0);
     }
 
     #[test]

@@ -313,7 +313,7 @@ pub fn agreement(
 ) -> f64 {
     let tau = config.huber;
     let score = |r: Residual| {
-        let d = r.normal.dot(&(pose * r.source - r.anchor)) / tau;
+        let d = r.at(pose) / tau;
         if d.abs() < 1.0 { r.weight * (1.0 - d * d) } else { 0.0 }
     };
     let edge: f64 =

@@ -434,16 +434,10 @@ impl Recording {
     }
 }
 
-/// Fills the ring and time channels a cloud lacks as `options` say (channels it has are kept): what
-/// every scan of a recording goes through, for clouds that come from elsewhere. For a sequence of
-/// scans, [`ChannelDeriver`] clusters the beams once.
-pub fn derive_channels(cloud: &mut PointCloud, options: &RecordingOptions) {
-    ChannelDeriver::new(options.clone()).derive(cloud);
-}
-
-/// [`derive_channels`] scan after scan of one sensor: where rings are clustered from elevations,
-/// the beams found in the first scan that needs them are kept for the rest (a sensor's beams do
-/// not move), so the clustering runs once and not per scan.
+/// Fills the ring and time channels scans lack as the options say (channels a scan has are kept):
+/// what every scan of a recording goes through, and clouds that come from elsewhere can. Where
+/// rings are clustered from elevations, the beams found in the first scan that needs them are
+/// kept for the rest (a sensor's beams do not move), so the clustering runs once and not per scan.
 #[derive(Clone, Debug)]
 pub struct ChannelDeriver {
     options: RecordingOptions,
