@@ -349,6 +349,17 @@ mod tests {
     }
 
     #[test]
+    fn the_config_reads_from_toml_with_defaults_for_what_is_left_out() {
+        let config: PoseGraphConfig = toml::from_str("max_iterations = 5\nloop_kernel = { huber = 2.0 }").unwrap();
+        assert_eq!(config.max_iterations, 5);
+        assert_eq!(config.loop_kernel, Kernel::Huber(2.0));
+        assert_eq!(config.odometry_kernel, Kernel::None);
+        let config: PoseGraphConfig = toml::from_str("loop_kernel = \"none\"").unwrap();
+        assert_eq!(config, PoseGraphConfig::least_squares());
+        assert!(toml::from_str::<PoseGraphConfig>("no_such_key = 1").is_err());
+    }
+
+    #[test]
     fn a_translation_error_costs_half_its_squared_mahalanobis_norm() {
         let mut graph = PoseGraph::new();
         graph.add_pose(Isometry3::identity());
