@@ -5,7 +5,7 @@
 //! solver of the workspace linearises and steps that way ([`crate::gauss_newton`]), and the
 //! information matrices it reports live in that tangent space.
 
-use nalgebra::{Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Matrix4, Matrix6, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6};
 
 /// The skew-symmetric matrix `[v]×`, so that `[v]× w = v × w`.
 pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
@@ -47,6 +47,80 @@ pub fn log(t: &Isometry3<f64>) -> Vector6<f64> {
     xi.fixed_rows_mut::<3>(0).copy_from(&rho);
     xi.fixed_rows_mut::<3>(3).copy_from(&phi);
     xi
+}
+
+/// The adjoint of `T = (R, t)`, so that `T · exp(ξ) · T⁻¹ = exp(Ad(T) ξ)`: moves a right
+/// perturbation of one frame into another. With `ξ = [ρ; φ]`,
+///
+/// ```text
+/// Ad(T) = [ R   [t]× R ]
+///         [ 0      R   ]                                                     (1)
+/// ```
+pub fn adjoint(t: &Isometry3<f64>) -> Matrix6<f64> {
+    let r = t.rotation.to_rotation_matrix().into_inner();
+    let mut ad = Matrix6::zeros();
+    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    ad.fixed_view_mut::<3, 3>(0, 3).copy_from(&(skew(&t.translation.vector) * r));
+    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    ad
+}
+
+/// The inverse right Jacobian of SE(3): `log(exp(ξ) · exp(δ)) ≈ ξ + Jr⁻¹(ξ) δ` for small `δ`, the
+/// derivative of a logarithm under a right perturbation (a pose-graph edge's error).
+///
+/// `Jr(ξ) = Jl(−ξ)`, and the left Jacobian is block triangular (Barfoot, "State Estimation for
+/// Robotics", eq. 7.85), so with `ψ = −φ`, `σ = −ρ`:
+///
+/// ```text
+/// Jr⁻¹(ξ) = [ Jl⁻¹(ψ)   −Jl⁻¹(ψ) Q(σ, ψ) Jl⁻¹(ψ) ]
+///           [    0              Jl⁻¹(ψ)         ]                            (2)
+/// ```
+pub fn right_jacobian_inverse(xi: &Vector6<f64>) -> Matrix6<f64> {
+    let sigma = -xi.fixed_rows::<3>(0).into_owned();
+    let psi = -xi.fixed_rows::<3>(3).into_owned();
+    let jl_inv = so3_left_jacobian_inverse(&psi);
+    let mut j = Matrix6::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&jl_inv);
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-jl_inv * se3_left_jacobian_q(&sigma, &psi) * jl_inv));
+    j.fixed_view_mut::<3, 3>(3, 3).copy_from(&jl_inv);
+    j
+}
+
+/// The inverse of [`so3_left_jacobian`] (Barfoot eq. 7.77), for angles up to π:
+/// `Jl⁻¹(φ) = I − ½[φ]× + (1/θ² − cot(θ/2) / 2θ) [φ]×²`.
+fn so3_left_jacobian_inverse(phi: &Vector3<f64>) -> Matrix3<f64> {
+    let theta = phi.norm();
+    let k = skew(phi);
+    // The closed form cancels to 1/12 as θ → 0; its Taylor series is exact to rounding below 1e-3.
+    let c = if theta < 1e-3 {
+        1.0 / 12.0 + theta * theta / 720.0
+    } else {
+        1.0 / (theta * theta) - 1.0 / (2.0 * theta * (theta / 2.0).tan())
+    };
+    Matrix3::identity() - 0.5 * k + c * k * k
+}
+
+/// The coupling block `Q(ρ, φ)` of SE(3)'s left Jacobian (Barfoot eq. 7.86).
+fn se3_left_jacobian_q(rho: &Vector3<f64>, phi: &Vector3<f64>) -> Matrix3<f64> {
+    let theta = phi.norm();
+    let (p, r) = (skew(phi), skew(rho));
+    let t2 = theta * theta;
+    // The closed forms cancel catastrophically for small θ (the last divides by θ⁵): below 1e-3
+    // their Taylor series, whose next terms are below 1e-12 of the first.
+    let (c1, c2, c3) = if theta < 1e-3 {
+        (1.0 / 6.0 - t2 / 120.0, 1.0 / 24.0 - t2 / 720.0, 1.0 / 120.0 - t2 / 2520.0)
+    } else {
+        let (s, c) = theta.sin_cos();
+        (
+            (theta - s) / (t2 * theta),
+            (t2 + 2.0 * c - 2.0) / (2.0 * t2 * t2),
+            (2.0 * theta - 3.0 * s + theta * c) / (2.0 * t2 * t2 * theta),
+        )
+    };
+    0.5 * r
+        + c1 * (p * r + r * p + p * r * p)
+        + c2 * (p * p * r + r * p * p - 3.0 * p * r * p)
+        + c3 * (p * r * p * p + p * p * r * p)
 }
 
 /// Geodesic interpolation between `a` (s = 0) and `b` (s = 1): `a · exp(s · log(a⁻¹ b))`.
@@ -157,6 +231,38 @@ mod tests {
         let m = interpolate(&a, &b, 0.5);
         let e = pose_error(&(m * (a.inverse() * m)), &b);
         assert!(e.translation_m < 1e-9 && e.rotation_deg < 1e-9, "two half steps make the whole");
+    }
+
+    #[test]
+    fn adjoint_moves_a_perturbation_between_frames() {
+        for i in 0..20 {
+            let t = exp(&sample(i));
+            let xi = sample(i + 31) * 0.3;
+            let moved = t * exp(&xi) * t.inverse();
+            let e = pose_error(&moved, &exp(&(adjoint(&t) * xi)));
+            assert!(e.translation_m < 1e-9 && e.rotation_deg < 1e-9, "{i}: {e:?}");
+        }
+    }
+
+    #[test]
+    fn right_jacobian_inverse_matches_numerical_differentiation() {
+        // Small, ordinary and nearly half-turn rotations (170 deg), and the exact identity.
+        let mut cases: Vec<Vector6<f64>> = (0..30).map(sample).collect();
+        cases.push(Vector6::zeros());
+        cases.push(Vector6::new(0.5, -1.0, 2.0, 1e-5, -2e-5, 1e-5));
+        let axis = Vector3::new(0.3, -0.5, 0.8).normalize() * 170f64.to_radians();
+        cases.push(Vector6::new(1.0, 2.0, -0.5, axis.x, axis.y, axis.z));
+        for xi in cases {
+            let t = exp(&xi);
+            let h = 1e-6;
+            let mut numeric = Matrix6::zeros();
+            for k in 0..6 {
+                let d = Vector6::ith(k, h);
+                numeric.set_column(k, &((log(&(t * exp(&d))) - log(&(t * exp(&-d)))) / (2.0 * h)));
+            }
+            let analytic = right_jacobian_inverse(&xi);
+            assert!((analytic - numeric).norm() < 1e-6 * (1.0 + numeric.norm()), "{xi}: {analytic} vs {numeric}");
+        }
     }
 
     #[test]

@@ -3,6 +3,7 @@
 pub mod memory;
 pub mod node;
 pub mod odometry;
+pub mod pose_graph;
 pub mod recording;
 pub mod robustness;
 pub mod source;

@@ -11,6 +11,7 @@ use cli::bench::BenchCommand;
 use cli::convert::ConvertArgs;
 use cli::eval::EvalArgs;
 use cli::odometry::OdometryArgs;
+use cli::posegraph::PosegraphArgs;
 use cli::run::RunArgs;
 use cli::sim::SimArgs;
 
@@ -50,6 +51,11 @@ enum Command {
     /// Compare an estimated trajectory with ground truth (KITTI or TUM files): ATE RMSE with and
     /// without SE(3) alignment, and RPE (translation %, deg/100 m) KITTI style.
     Eval(EvalArgs),
+    /// Optimise a 3-D pose graph in g2o format (VERTEX_SE3:QUAT, EDGE_SE3:QUAT) with
+    /// Levenberg-Marquardt, least squares unless --kernel makes the loop edges robust; write the
+    /// optimised graph to --out and print the initial and final error (GTSAM's: half the sum of
+    /// squared Mahalanobis norms), the iterations and the optimiser's time.
+    Posegraph(PosegraphArgs),
     /// The robot's network service: odometry on a source, each keyframe published on
     /// emr/FLEET/robot/ID/keyframe, the keyframes kept for backfill requests on
     /// emr/FLEET/robot/ID/keyframes, and a liveliness token on emr/FLEET/robot/ID/alive. Without
@@ -70,6 +76,7 @@ fn main() -> Result<()> {
         Command::Convert(args) => cli::convert::convert(args),
         Command::Odometry(args) => cli::odometry::odometry(args),
         Command::Eval(args) => cli::eval::evaluate(&args),
+        Command::Posegraph(args) => cli::posegraph::posegraph(&args),
         Command::Run(args) => cli::run::run(args),
     }
 }

@@ -4,6 +4,7 @@ pub mod bench;
 pub mod convert;
 pub mod eval;
 pub mod odometry;
+pub mod posegraph;
 pub mod run;
 pub mod sim;
 

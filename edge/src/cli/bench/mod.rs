@@ -2,6 +2,7 @@
 
 mod codec;
 mod odometry;
+mod posegraph;
 mod robustness;
 
 use std::path::PathBuf;
@@ -62,6 +63,25 @@ pub enum BenchCommand {
     /// track held (final error below 5 % of the path or 0.1 m, and 5 deg), beside KISS-ICP on the
     /// same scans (scripts/compare_kiss_icp.py). Progress on stderr, the table on stdout.
     Robustness(RobustnessArgs),
+    /// Pose-graph optimisation: the g2o benchmarks DIR/parking-garage.g2o and DIR/smallGrid3D.g2o
+    /// (least squares, as GTSAM measures them) and a synthetic graph of laps around a ring with
+    /// noisy odometry and 5 % loop edges (default Cauchy loop kernel, and least squares): poses,
+    /// edges, initial and final error, iterations, median optimiser milliseconds (file reading
+    /// excluded), and on the synthetic graph the ATE against the truth before and after.
+    Posegraph {
+        /// Directory of the g2o files.
+        #[arg(long, default_value = "../shared/data/posegraph")]
+        data: PathBuf,
+        /// Poses of the synthetic graph.
+        #[arg(long, default_value_t = 5000)]
+        poses: usize,
+        /// Timed runs per graph (the median is reported).
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+        /// Also write the synthetic graph (its starting point) to this g2o file.
+        #[arg(long)]
+        write_synthetic: Option<PathBuf>,
+    },
     /// Fine registration (GICP, VGICP): median time per registration on one thread and on all, and
     /// the error against the reference pose, on DIR/{source,target}.ply and DIR/T_target_source.txt.
     Gicp {
@@ -96,6 +116,9 @@ pub fn bench(what: BenchCommand) -> Result<()> {
             println!("{}", odometry::odometry(&scans, &config, runs)?);
         }
         BenchCommand::Robustness(args) => robustness::robustness(args)?,
+        BenchCommand::Posegraph { data, poses, runs, write_synthetic } => {
+            println!("{}", posegraph::posegraph(&data, poses, runs, write_synthetic.as_deref())?)
+        }
         BenchCommand::Gicp { data, runs } => println!("{}", cloud::registration::bench::gicp(&data, runs)?),
         BenchCommand::Global { data, runs } => {
             let (source, target, reference) =
