@@ -183,7 +183,7 @@ fn prepare(config: &LoadConfig, per_robot: usize) -> Result<Vec<Vec<Vec<u8>>>, L
                     let cloud = cloud::voxel::downsample(&scan.cloud, config.voxel)
                         .map_err(|e| LoadError::Prepare(e.to_string()))?;
                     let kf = Keyframe { seq: k as u64, frame: k, pose: origin * scan.ground_truth, cloud };
-                    keyframe_message(fleet, i as u32 + 1, &kf, scan.stamp, &CodecConfig::default())
+                    keyframe_message(fleet, i as u32 + 1, &kf, scan.stamp, None, &CodecConfig::default())
                         .map(|m| m.encode_to_vec())
                         .map_err(|e| LoadError::Prepare(e.to_string()))
                 })

@@ -111,8 +111,12 @@ pub struct RobotResult {
     pub frames: usize,
     /// Keyframes.
     pub keyframes: u64,
+    /// Loops the robot closed (in its pose graph at the end).
+    pub loops: usize,
     /// Odometry ATE in the robot's own frame, after SE(3) alignment and as estimated.
     pub odometry_ate: (Ate, Ate),
+    /// The same after the robot's loop closure (equal to the odometry's without loops).
+    pub corrected_ate: (Ate, Ate),
     /// ATE of the trajectory placed in the global frame against the truth in that frame (merge
     /// and odometry errors together, no alignment), when the robot was merged.
     pub global_ate: Option<Ate>,
@@ -206,7 +210,7 @@ async fn start_edge(
     config: &DemoConfig,
     robot: u32,
     port: u16,
-    done: mpsc::UnboundedSender<(u32, u64)>,
+    done: mpsc::UnboundedSender<(u32, SourceDone)>,
 ) -> Result<EdgeTask, DemoError> {
     let session = open(&bus::Network::loopback_ports(&[], &[port])).await?;
     let source = SourceSpec::Sim { scenario: config.scenario.clone(), robot };
@@ -214,7 +218,7 @@ async fn start_edge(
         max_frames: config.frames,
         rate: config.rate,
         on_source_end: Some(SourceEnd(Arc::new(move |s: &NodeSummary| {
-            let _ = done.send((robot, s.keyframes));
+            let _ = done.send((robot, SourceDone { keyframes: s.keyframes, pose_revision: s.posegraph_revision }));
         }))),
         ..NodeConfig::new(config.station.fleet.clone(), robot, source)
     };
@@ -230,28 +234,47 @@ async fn start_edge(
     Ok(EdgeTask { robot, stop, task })
 }
 
-/// Waits until every robot's source has ended; returns each robot's keyframe count.
-async fn wait_sources(done: &mut mpsc::UnboundedReceiver<(u32, u64)>, robots: usize) -> BTreeMap<u32, u64> {
-    let mut keyframes = BTreeMap::new();
-    while keyframes.len() < robots {
+/// What a robot had sent when its source ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct SourceDone {
+    keyframes: u64,
+    /// Its newest pose-graph revision (0: it closed no loop).
+    pose_revision: u64,
+}
+
+/// Waits until every robot's source has ended; returns what each had sent.
+async fn wait_sources(
+    done: &mut mpsc::UnboundedReceiver<(u32, SourceDone)>,
+    robots: usize,
+) -> BTreeMap<u32, SourceDone> {
+    let mut sent = BTreeMap::new();
+    while sent.len() < robots {
         match done.recv().await {
-            Some((robot, n)) => {
-                info!("robot {robot}: all scans done, {n} keyframes");
-                keyframes.insert(robot, n);
+            Some((robot, d)) => {
+                info!(
+                    "robot {robot}: all scans done, {} keyframes, pose graph revision {}",
+                    d.keyframes, d.pose_revision
+                );
+                sent.insert(robot, d);
             }
             None => break,
         }
     }
-    keyframes
+    sent
 }
 
-/// Waits until the station holds every keyframe and has published a map built from them all.
-async fn wait_station(station: &Station, keyframes: &BTreeMap<u32, u64>) -> bool {
+/// Waits until the station holds every keyframe and every robot's newest pose graph, and has
+/// published a map built from them all.
+async fn wait_station(station: &Station, sent: &BTreeMap<u32, SourceDone>) -> bool {
     let mut progress = station.progress();
     loop {
         let ready = {
             let p = progress.borrow_and_update();
-            p.up_to_date() && keyframes.iter().all(|(r, n)| p.keyframes.get(r).is_some_and(|&k| k as u64 == *n))
+            p.up_to_date()
+                && sent.iter().all(|(r, d)| {
+                    p.keyframes.get(r).is_some_and(|&k| k as u64 == d.keyframes)
+                        && (d.pose_revision == 0 || p.pose_revisions.get(r).is_some_and(|&v| v >= d.pose_revision))
+                })
         };
         if ready {
             return true;
@@ -279,7 +302,11 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotRe
             };
             let truth = truth_in_own_frame(s);
             let odometry_ate = (ate(&truth, &s.poses, true), ate(&truth, &s.poses, false));
-            let global_ate = frame.map(|f| ate(&moved(&truth, &f.truth), &moved(&s.poses, &f.placed), false));
+            let corrected = s.corrected_poses();
+            let corrected_ate = (ate(&truth, &corrected, true), ate(&truth, &corrected, false));
+            // The station places the keyframes at their optimised poses: the trajectory it places
+            // is the corrected one.
+            let global_ate = frame.map(|f| ate(&moved(&truth, &f.truth), &moved(&corrected, &f.placed), false));
             let placement_error = frame.map(|f| {
                 let d = f.placed.inverse() * f.truth;
                 (d.translation.vector.norm(), d.rotation.angle().to_degrees())
@@ -288,7 +315,9 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotRe
                 robot,
                 frames: s.frames,
                 keyframes: s.keyframes,
+                loops: s.loops,
                 odometry_ate,
+                corrected_ate,
                 global_ate,
                 placement_error,
                 frame,
@@ -334,7 +363,7 @@ fn write_results(
         let (robot, s) = (r.robot, &summaries[&r.robot]);
         let frame = r.frame.unwrap_or(GlobalFrame { placed: Isometry3::identity(), truth: Isometry3::identity() });
         let stamps = Some(s.stamps.clone());
-        let est = Trajectory { poses: moved(&s.poses, &frame.placed), stamps: stamps.clone() };
+        let est = Trajectory { poses: moved(&s.corrected_poses(), &frame.placed), stamps: stamps.clone() };
         let gt = Trajectory { poses: moved(&truth_in_own_frame(s), &frame.truth), stamps };
         for (name, t) in [("estimated", est), ("ground_truth", gt)] {
             let path = out.join(format!("robot{robot}_{name}_tum.txt"));
@@ -363,7 +392,9 @@ fn summary_json(config: &DemoConfig, map: &GlobalMap, robots: &[RobotResult], ti
                 "merged": r.merged,
                 "confidence": r.confidence,
                 "placement_error": r.placement_error.map(|(m, d)| json!({"m": m, "deg": d})),
+                "loops": r.loops,
                 "odometry_ate": {"aligned": ate_json(&r.odometry_ate.0), "unaligned": ate_json(&r.odometry_ate.1)},
+                "loop_closed_ate": {"aligned": ate_json(&r.corrected_ate.0), "unaligned": ate_json(&r.corrected_ate.1)},
                 "global_ate_unaligned": r.global_ate.as_ref().map(ate_json),
             })
         })

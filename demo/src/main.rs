@@ -125,21 +125,24 @@ fn print_demo(report: &DemoReport) {
         report.merge_ms.last().copied().unwrap_or(0.0)
     );
     println!(
-        "robot  scans  keyframes  status    confidence  placement error   odometry ATE aligned/unaligned  global ATE"
+        "robot  scans  keyframes  loops  status    confidence  placement error   odometry ATE aligned/unaligned  with loops  global ATE"
     );
     for r in &report.robots {
         let placement = r.placement_error.map_or("-".into(), |(m, d)| format!("{:.1} cm {:.2} deg", m * 100.0, d));
         let global = r.global_ate.map_or("-".into(), |a| format!("{:.1} cm", a.rmse * 100.0));
         println!(
-            "{:>5}  {:>5}  {:>9}  {:<8}  {:>10.3}  {:>15}   {:>13.1} / {:.1} cm        {global:>10}",
+            "{:>5}  {:>5}  {:>9}  {:>5}  {:<8}  {:>10.3}  {:>15}   {:>13.1} / {:.1} cm   {:>4.1} / {:.1} cm  {global:>10}",
             r.robot,
             r.frames,
             r.keyframes,
+            r.loops,
             if r.merged { "merged" } else { "unmerged" },
             r.confidence,
             placement,
             r.odometry_ate.0.rmse * 100.0,
             r.odometry_ate.1.rmse * 100.0,
+            r.corrected_ate.0.rmse * 100.0,
+            r.corrected_ate.1.rmse * 100.0,
         );
     }
     for path in &report.written {

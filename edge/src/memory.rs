@@ -38,7 +38,7 @@ pub fn release_free_memory() {
 /// [`release_free_memory`] after every [`RELEASE_EVERY`]-th of `done` scans: what a long run calls
 /// after each scan.
 pub fn release_periodically(done: usize) {
-    if done % RELEASE_EVERY == 0 {
+    if done.is_multiple_of(RELEASE_EVERY) {
         release_free_memory();
     }
 }

@@ -34,6 +34,16 @@ pub struct InvalidSource {
     pub reason: String,
 }
 
+impl std::fmt::Display for SourceSpec {
+    /// As it is written on the command line.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SourceSpec::Sim { scenario, robot } => write!(f, "sim:{scenario}:{robot}"),
+            SourceSpec::Recording(path) => write!(f, "{}", path.display()),
+        }
+    }
+}
+
 impl FromStr for SourceSpec {
     type Err = InvalidSource;
 

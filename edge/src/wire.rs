@@ -5,6 +5,8 @@ use nalgebra::Isometry3;
 use proto::codec::{self, CodecConfig, DecodeError, DecodeLimits, EncodeError};
 use proto::{CompressedCloud, Fleet, InvalidPose, Pose, Timestamp};
 
+use crate::loops::LoopCloser;
+use crate::loops::scan_context::ScanContext;
 use crate::odometry::Keyframe;
 
 /// Largest keyframe cloud [`keyframe_cloud`] decodes: a voxel-downsampled scan has thousands of
@@ -58,6 +60,7 @@ pub fn keyframe_message(
     robot: u32,
     kf: &Keyframe,
     stamp_s: f64,
+    context: Option<&ScanContext>,
     codec: &CodecConfig,
 ) -> Result<proto::Keyframe, EncodeError> {
     let data = codec::encode(&kf.cloud, codec)?;
@@ -67,9 +70,30 @@ pub fn keyframe_message(
         seq: kf.seq,
         stamp: Some(Timestamp::from_secs_f64(stamp_s)),
         odom_pose: Some(Pose::from(&kf.pose)),
-        scan_context: None,
+        scan_context: context.map(ScanContext::to_message),
         cloud: Some(CompressedCloud { data: data.into(), points: kf.cloud.len() as u64 }),
     })
+}
+
+/// The wire message of the loop closure's graph after an optimisation: every keyframe's pose and the
+/// loops in the graph.
+pub fn posegraph_message(fleet: &Fleet, robot: u32, loops: &LoopCloser) -> proto::PoseGraphUpdate {
+    let places = loops.places();
+    let poses = places
+        .iter()
+        .zip(loops.poses())
+        .map(|(place, pose)| proto::KeyframePose { seq: place.seq, pose: Some(Pose::from(pose)) })
+        .collect();
+    let loops_in_graph = loops
+        .loops()
+        .map(|l| proto::LoopEdge {
+            from_seq: places[l.a].seq,
+            to_seq: places[l.b].seq,
+            relative: Some(Pose::from(&l.fit.transform)),
+            score: l.fit.score,
+        })
+        .collect();
+    proto::PoseGraphUpdate { fleet: fleet.to_string(), robot, revision: loops.revision(), poses, loops: loops_in_graph }
 }
 
 /// The odometry pose and the decoded cloud of a wire keyframe.
@@ -107,7 +131,7 @@ mod tests {
     fn keyframes_round_trip_within_the_codec_step() {
         let kf = keyframe();
         let fleet = Fleet::new("f1").unwrap();
-        let msg = keyframe_message(&fleet, 3, &kf, 12.5, &CodecConfig::default()).unwrap();
+        let msg = keyframe_message(&fleet, 3, &kf, 12.5, None, &CodecConfig::default()).unwrap();
         assert_eq!((msg.fleet.as_str(), msg.robot, msg.seq), ("f1", 3, 7));
         assert_eq!(msg.stamp, Some(Timestamp { sec: 12, nanosec: 500_000_000 }));
         assert_eq!(msg.cloud.as_ref().unwrap().points, 500);
@@ -122,7 +146,7 @@ mod tests {
     #[test]
     fn broken_messages_say_what_is_wrong() {
         let fleet = Fleet::new("f1").unwrap();
-        let good = keyframe_message(&fleet, 3, &keyframe(), 0.0, &CodecConfig::default()).unwrap();
+        let good = keyframe_message(&fleet, 3, &keyframe(), 0.0, None, &CodecConfig::default()).unwrap();
         let no_pose = proto::Keyframe { odom_pose: None, ..good.clone() };
         assert!(matches!(keyframe_cloud(&no_pose), Err(WireError::MissingPose { robot: 3, seq: 7 })));
         let bad_pose = proto::Keyframe { odom_pose: Some(Pose { qw: 2.0, ..Pose::identity() }), ..good.clone() };

@@ -130,3 +130,37 @@ fn a_corrupt_scan_is_skipped_warned_and_counted() {
     let reason = skipped[0]["reason"].as_str().unwrap();
     assert!(reason.contains("000002.bin") && reason.contains("multiple of 16"), "{reason}");
 }
+
+#[test]
+fn loop_closure_files_are_written_by_default_and_not_with_no_loops() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = kitti00();
+    let (with, without) = (dir.path().join("emr"), dir.path().join("mr"));
+    for (out, flag) in [(&with, None), (&without, Some("--no-loops"))] {
+        let mut args = vec!["odometry", data.to_str().unwrap(), "--out", out.to_str().unwrap(), "--preset", "outdoor"];
+        args.extend(["--no-deskew", "--max-frames", "8"]);
+        args.extend(flag);
+        let run = emr_edge(&args);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    }
+    // 8 scans over ~5 m revisit nothing: no loop, the optimised poses are the odometry's.
+    let loops: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(with.join("loops.json")).unwrap()).unwrap();
+    assert_eq!(loops["loops"], serde_json::json!([]));
+    assert!(loops["rejected"].is_array());
+    let read = |p: PathBuf| std::fs::read_to_string(p).unwrap();
+    assert_eq!(read(with.join("poses_kitti.txt")), read(with.join("poses_odometry_kitti.txt")));
+    assert_eq!(read(with.join("poses_kitti.txt")), read(without.join("poses_kitti.txt")));
+    let stats: serde_json::Value = serde_json::from_str(&read(with.join("stats.json"))).unwrap();
+    let keyframes = stats["loops"]["keyframes"].as_u64().unwrap();
+    assert!(keyframes >= 2, "{stats}");
+    // The graph: a vertex per keyframe, an odometry edge between consecutive ones.
+    let graph = edge::pose_graph::g2o::parse(&read(with.join("graph.g2o"))).unwrap();
+    assert_eq!((graph.poses().len() as u64, graph.edges().len() as u64), (keyframes, keyframes - 1));
+    for file in ["loops.json", "graph.g2o", "poses_odometry_kitti.txt"] {
+        assert!(!without.join(file).exists(), "{file} written with --no-loops");
+    }
+    assert!(
+        serde_json::from_str::<serde_json::Value>(&read(without.join("stats.json"))).unwrap().get("loops").is_none()
+    );
+}

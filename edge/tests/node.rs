@@ -226,3 +226,39 @@ fn run_on_a_missing_recording_fails_naming_it() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains(missing), "{stderr}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_closed_loop_publishes_the_pose_graph_and_a_late_asker_gets_the_newest() {
+    // Robot 1 of the warehouse is back where it started after ~110 m, ~900 scans.
+    let running = start(NodeConfig { linger: true, ..config("fleet-loops", Some(950)) }).await;
+    let updates = running.client.declare_subscriber(keyexpr::posegraph(&running.fleet, 1)).await.unwrap();
+    let mut keyframes = BTreeMap::new();
+    running.collect(Duration::from_secs(20), &mut keyframes).await;
+    let mut received = Vec::new();
+    while let Ok(Ok(sample)) = tokio::time::timeout(Duration::from_millis(200), updates.recv_async()).await {
+        received.push(proto::PoseGraphUpdate::decode(sample.payload().to_bytes().as_ref()).unwrap());
+    }
+    let newest = received.last().expect("a loop closes within 950 scans and the graph is published");
+    assert!(received.windows(2).all(|w| w[0].revision < w[1].revision), "revisions increase");
+    assert!(newest.loops.len() >= 2, "{} loops", newest.loops.len());
+    for l in &newest.loops {
+        assert!(l.from_seq < l.to_seq && l.to_seq < keyframes.len() as u64, "{l:?}");
+        assert!(l.score > 0.5, "{l:?}");
+    }
+    // Every keyframe up to the newest one has an optimised pose, in order.
+    let seqs: Vec<u64> = newest.poses.iter().map(|p| p.seq).collect();
+    assert_eq!(seqs, (0..seqs.len() as u64).collect::<Vec<_>>());
+    // Keyframes carry their Scan Context.
+    let kf = proto::Keyframe::decode(keyframes[&0].as_slice()).unwrap();
+    let context = kf.scan_context.expect("a descriptor on the wire");
+    assert_eq!((context.rings, context.sectors, context.cells.len()), (20, 60, 1200));
+    // A station that was not listening asks the pose-graph key and gets the newest update.
+    let replies =
+        running.client.get(keyexpr::posegraph(&running.fleet, 1)).timeout(Duration::from_secs(10)).await.unwrap();
+    let reply = replies.recv_async().await.expect("the node answers");
+    let late = proto::PoseGraphUpdate::decode(reply.result().unwrap().payload().to_bytes().as_ref()).unwrap();
+    assert_eq!(&late, newest);
+    let summary = running.shut_down().await;
+    assert_eq!(summary.posegraph_revision, newest.revision);
+    assert_eq!(summary.loops, newest.loops.len());
+}

@@ -166,6 +166,9 @@ pub(crate) fn linearize<T: Target, F: Factor>(
     })
 }
 
+/// One block of [`evaluate`]: correspondences, source points and their covariances.
+type SourceBlock<'a> = (&'a [u32], (&'a [Vector3<f64>], &'a [Matrix3<f64>]));
+
 /// The cost `Σ eᵀ W e` at `pose` over the correspondences fixed by the last [`linearize`].
 pub(crate) fn evaluate<T: Target, F: Factor>(
     source: &GaussianCloud,
@@ -177,7 +180,7 @@ pub(crate) fn evaluate<T: Target, F: Factor>(
     let gaussians = PointToGaussian::new(target, factor, pose);
     let blocks =
         matches.par_chunks(BLOCK).zip(source.points.par_chunks(BLOCK).zip(source.covariances.par_chunks(BLOCK)));
-    let block_cost = |(matches, (points, covariances)): (&[u32], (&[Vector3<f64>], &[Matrix3<f64>]))| {
+    let block_cost = |(matches, (points, covariances)): SourceBlock| {
         let mut cost = 0.0;
         for ((&target, point), covariance) in matches.iter().zip(points).zip(covariances) {
             if target == NO_MATCH {

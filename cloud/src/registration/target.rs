@@ -1,6 +1,6 @@
 //! What a source point is matched against: Gaussians found by nearest-neighbour search.
 
-use nalgebra::{Matrix3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
 use super::covariance::estimate_covariances_with;
 use crate::kdtree::KdTree;
@@ -34,6 +34,29 @@ impl GaussianCloud {
         GaussianCloud { points, covariances, tree }
     }
 
+    /// Points with covariances estimated elsewhere (e.g. each in its own cloud's frame and moved
+    /// here, [`GaussianCloud::transformed`]); builds the tree. `covariances` is truncated or padded
+    /// with identities to the points' length.
+    pub fn from_parts(points: Vec<Vector3<f64>>, mut covariances: Vec<Matrix3<f64>>) -> Self {
+        covariances.resize(points.len(), Matrix3::identity());
+        let xyz: Vec<[f32; 3]> = points.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
+        GaussianCloud { tree: KdTree::new(&xyz), points, covariances }
+    }
+
+    /// The points and covariances moved by `pose` (`p ↦ T p`, `C ↦ R C Rᵀ`), without a tree: parts
+    /// for [`GaussianCloud::from_parts`].
+    pub fn transformed(&self, pose: &Isometry3<f64>) -> (Vec<Vector3<f64>>, Vec<Matrix3<f64>>) {
+        let r = pose.rotation.to_rotation_matrix().into_inner();
+        let points = self.points.iter().map(|p| pose.rotation * p + pose.translation.vector).collect();
+        let covariances = self.covariances.iter().map(|c| r * c * r.transpose()).collect();
+        (points, covariances)
+    }
+
+    /// The points in single precision.
+    pub fn points_f32(&self) -> Vec<Point3<f32>> {
+        self.points.iter().map(|p| Point3::from(p.cast::<f32>())).collect()
+    }
+
     /// Every `step`-th point with its covariance, as a registration source only: no tree is built,
     /// so it finds nothing when used as a target.
     pub(crate) fn strided_source(&self, step: usize) -> Self {
@@ -48,6 +71,11 @@ impl GaussianCloud {
     /// Number of points.
     pub fn len(&self) -> usize {
         self.points.len()
+    }
+
+    /// The k-d tree over the points (empty for a strided source).
+    pub fn tree(&self) -> &KdTree {
+        &self.tree
     }
 
     /// True when the cloud holds no point.

@@ -23,6 +23,14 @@ pub struct OdometryArgs {
     /// Print the configuration that would be used (TOML) and exit.
     #[arg(long)]
     print_config: bool,
+    /// Close loops (the default: EMR-FLOAM's EMR mode): Scan Context candidates, verified by
+    /// registration and by consistency with the odometry and each other, in a keyframe pose graph.
+    /// Also writes poses_odometry_kitti.txt (before the loops), graph.g2o and loops.json.
+    #[arg(long, overrides_with = "no_loops")]
+    loops: bool,
+    /// Odometry only (the paper's MR mode): poses_kitti.txt is the odometry.
+    #[arg(long, overrides_with = "loops")]
+    no_loops: bool,
 }
 
 /// `emr-edge odometry`.
@@ -32,8 +40,9 @@ pub fn odometry(args: OdometryArgs) -> Result<()> {
         print!("{}", toml::to_string(&config)?);
         return Ok(());
     }
-    let pipeline = OdometryPipeline::new(&args.source.input, args.source.topic, args.max_frames, config, &args.out)?;
-    let bar = progress_bar(pipeline.len(), "scans");
+    let pipeline = OdometryPipeline::new(&args.source.input, args.source.topic, args.max_frames, config, &args.out)?
+        .with_loops(!args.no_loops);
+    let bar = progress_bar(pipeline.expected_scans(), "scans");
     let report = pipeline.run(|_| bar.inc(1));
     bar.finish_and_clear();
     println!("{}", report?.to_json()?);

@@ -36,10 +36,16 @@ pub struct RunArgs {
     max_frames: Option<usize>,
     #[command(flatten)]
     tuning: TuningArgs,
+    /// Odometry only (the paper's MR mode): no loop closure, no pose-graph updates. By default the
+    /// robot closes its own loops and publishes the optimised keyframe poses on
+    /// emr/FLEET/robot/ID/posegraph after each optimisation.
+    #[arg(long)]
+    no_loops: bool,
     /// Exit when the source ends instead of answering backfill requests until a signal.
     #[arg(long)]
     exit_when_done: bool,
-    /// When the source ends, write {"robot", "frames", "keyframes", "published_bytes"} here (JSON):
+    /// When the source ends, write {"robot", "frames", "keyframes", "published_bytes", "loops",
+    /// "posegraph_revision"} here (JSON):
     /// how scripts and the system tests learn that a robot is done while it keeps serving.
     #[arg(long, value_name = "FILE")]
     summary: Option<PathBuf>,
@@ -74,6 +80,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         rate: args.rate.into(),
         recording: recording_options(args.topic.clone(), &odometry),
         odometry,
+        loops: !args.no_loops,
         linger: !args.exit_when_done,
         on_source_end: args.summary.clone().map(|path| summary_writer(path, robot)),
         ..NodeConfig::new(args.fleet.clone(), robot, args.source.clone())
@@ -104,6 +111,7 @@ fn summary_writer(path: PathBuf, robot: u32) -> SourceEnd {
     SourceEnd(Arc::new(move |s: &NodeSummary| {
         let json = serde_json::json!({
             "robot": robot, "frames": s.frames, "keyframes": s.keyframes, "published_bytes": s.published_bytes,
+            "loops": s.loops, "posegraph_revision": s.posegraph_revision,
         });
         let partial = path.with_extension("partial");
         let written = std::fs::write(&partial, json.to_string()).and_then(|()| std::fs::rename(&partial, &path));

@@ -1,8 +1,10 @@
 //! The robot's network service: odometry on a scan source, keyframes published on Zenoh, a keyframe
 //! store answering backfill requests, and a liveliness token while it runs.
 //!
-//! The source and the odometry run on a blocking thread (`worker`); this module's async half
-//! publishes what it registers, keeps the encoded keyframes (`store`) and serves them (`serve`).
+//! The source, the odometry and the loop closure run on a blocking thread (`worker`); this module's
+//! async half publishes what it registers, keeps the encoded keyframes (`store`) and serves them
+//! (`serve`), and publishes each pose-graph update, answering queries on the pose-graph key with
+//! the newest one (it supersedes the earlier ones).
 //!
 //! Backfill replies all carry the store's key expression (`emr/{fleet}/robot/{id}/keyframes`), one
 //! sample per keyframe: an asker must `get` with `ConsolidationMode::None`, or zenoh's default
@@ -29,11 +31,12 @@ use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 
+use crate::loops::{LoopCloser, LoopError};
 use crate::odometry::{Odometry, OdometryConfig, OdometryError};
 use crate::recording::RecordingOptions;
 use crate::source::{Source, SourceError, SourceSpec};
 use store::Store;
-use worker::{EncodedKeyframe, Registered, Worker};
+use worker::{EncodedKeyframe, EncodedPoseGraph, Registered, Worker};
 
 /// Default budget of the keyframe store: 256 MiB of encoded keyframes.
 pub const DEFAULT_STORE_BYTES: usize = 256 << 20;
@@ -69,8 +72,10 @@ pub struct NodeConfig {
     pub max_frames: Option<usize>,
     /// How fast the source is read.
     pub rate: Rate,
-    /// The odometry's configuration.
+    /// The odometry's configuration (its `loops` section configures the loop closure).
     pub odometry: OdometryConfig,
+    /// Close loops and publish the pose graph (EMR mode); off: odometry only (MR mode).
+    pub loops: bool,
     /// Simulated sensor settings (for `sim:` sources).
     pub sim: SimConfig,
     /// How recordings are read.
@@ -106,6 +111,7 @@ impl NodeConfig {
             max_frames: None,
             rate: Rate::Realtime,
             odometry: OdometryConfig::indoor(),
+            loops: true,
             sim: SimConfig::default(),
             recording: RecordingOptions::default(),
             codec: CodecConfig::default(),
@@ -131,6 +137,31 @@ pub struct NodeSummary {
     pub ground_truth: Vec<Option<Isometry3<f64>>>,
     /// Bytes of keyframe messages published.
     pub published_bytes: u64,
+    /// Loops in the pose graph.
+    pub loops: usize,
+    /// Pose-graph updates published (the newest one's revision).
+    pub posegraph_revision: u64,
+    /// Each scan's keyframe: the newest one at or before it.
+    pub keyframe_of_scan: Vec<usize>,
+    /// Each keyframe's odometry pose.
+    pub keyframe_poses: Vec<Isometry3<f64>>,
+    /// Each keyframe's pose in the newest pose graph (empty while no loop was closed).
+    pub optimised_keyframes: Vec<Isometry3<f64>>,
+}
+
+impl NodeSummary {
+    /// Each scan's pose with the newest pose graph applied: its keyframe's optimised pose and the
+    /// odometry's motion since that keyframe (the odometry poses while no loop was closed).
+    pub fn corrected_poses(&self) -> Vec<Isometry3<f64>> {
+        self.poses
+            .iter()
+            .zip(&self.keyframe_of_scan)
+            .map(|(pose, &k)| match (self.optimised_keyframes.get(k), self.keyframe_poses.get(k)) {
+                (Some(optimised), Some(odometry)) => optimised * (odometry.inverse() * pose),
+                _ => *pose,
+            })
+            .collect()
+    }
 }
 
 /// Why a node stopped with an error.
@@ -154,6 +185,14 @@ pub enum NodeError {
         index: usize,
         /// What the odometry said.
         source: OdometryError,
+    },
+    /// The loop closure failed on a keyframe.
+    #[error("loop closure at keyframe {seq}: {source}")]
+    Loops {
+        /// Keyframe sequence number.
+        seq: u64,
+        /// What the loop closure said.
+        source: LoopError,
     },
     /// A keyframe's cloud could not be encoded.
     #[error("keyframe {seq}: {source}")]
@@ -192,6 +231,8 @@ pub async fn run(
         robot: config.robot,
         codec: config.codec.clone(),
         rate: config.rate,
+        loops: config.loops.then(|| LoopCloser::new(config.odometry.loops.clone())),
+        scan_context: config.odometry.loops.scan_context.clone(),
     };
     let links = Links::declare(session, &config).await?;
     let (tx, rx) = mpsc::channel(CHANNEL_SCANS);
@@ -273,6 +314,12 @@ struct Links<'a> {
     store: Arc<Mutex<Store>>,
     serving: JoinHandle<()>,
     stop_serving: oneshot::Sender<()>,
+    posegraph: Publisher<'a>,
+    /// The newest pose-graph update: it supersedes every earlier one, so it is all a late
+    /// subscriber needs.
+    latest_posegraph: Arc<Mutex<Option<ZBytes>>>,
+    serving_posegraph: JoinHandle<()>,
+    stop_serving_posegraph: oneshot::Sender<()>,
 }
 
 impl<'a> Links<'a> {
@@ -294,7 +341,27 @@ impl<'a> Links<'a> {
         let store = Arc::new(Mutex::new(Store::new(config.store_bytes)));
         let (stop_serving, stop) = oneshot::channel();
         let serving = tokio::spawn(serve::serve(queryable, store.clone(), stop));
-        Ok(Links { token, publisher, store, serving, stop_serving })
+        let key = keyexpr::posegraph(fleet, robot);
+        let posegraph = session
+            .declare_publisher(key.clone())
+            .congestion_control(CongestionControl::Block)
+            .await
+            .map_err(zenoh_error("declare", &key))?;
+        let queryable = session.declare_queryable(key.clone()).await.map_err(zenoh_error("declare", &key))?;
+        let latest_posegraph = Arc::new(Mutex::new(None));
+        let (stop_serving_posegraph, stop) = oneshot::channel();
+        let serving_posegraph = tokio::spawn(serve::serve_latest(queryable, latest_posegraph.clone(), stop));
+        Ok(Links {
+            token,
+            publisher,
+            store,
+            serving,
+            stop_serving,
+            posegraph,
+            latest_posegraph,
+            serving_posegraph,
+            stop_serving_posegraph,
+        })
     }
 
     /// Stops serving and undeclares everything; failures are only logged (the node is done anyway).
@@ -302,6 +369,13 @@ impl<'a> Links<'a> {
         let _ = self.stop_serving.send(());
         if let Err(e) = self.serving.await {
             warn!("the keyframe queryable task failed: {e}");
+        }
+        let _ = self.stop_serving_posegraph.send(());
+        if let Err(e) = self.serving_posegraph.await {
+            warn!("the pose-graph queryable task failed: {e}");
+        }
+        if let Err(e) = self.posegraph.undeclare().await {
+            warn!("cannot undeclare the pose-graph publisher: {e}");
         }
         if let Err(e) = self.publisher.undeclare().await {
             warn!("cannot undeclare the keyframe publisher: {e}");
@@ -338,8 +412,15 @@ impl<'l> Outbox<'l> {
         s.poses.push(scan.pose);
         s.stamps.push(scan.stamp);
         s.ground_truth.push(scan.ground_truth);
+        s.loops = scan.loops;
         if let Some(kf) = scan.keyframe {
+            s.keyframe_poses.push(scan.pose);
             self.publish(kf).await?;
+        }
+        let s = &mut self.summary;
+        s.keyframe_of_scan.push(s.keyframe_poses.len().saturating_sub(1));
+        if let Some(update) = scan.posegraph {
+            self.publish_posegraph(update).await?;
         }
         if self.summary.frames.is_multiple_of(PROGRESS_EVERY) {
             info!("robot {}: {} scans, {} keyframes", self.robot, self.summary.frames, self.summary.keyframes);
@@ -368,6 +449,18 @@ impl<'l> Outbox<'l> {
         self.links.publisher.put(payload).await.map_err(zenoh_error("publish on", key.as_str()))?;
         self.summary.keyframes += 1;
         self.summary.published_bytes += bytes;
+        Ok(())
+    }
+
+    /// Keeps the update for late askers (first, as keyframes are stored first) and puts it.
+    async fn publish_posegraph(&mut self, update: EncodedPoseGraph) -> Result<(), NodeError> {
+        let payload = ZBytes::from(update.payload.clone());
+        *self.links.latest_posegraph.lock().unwrap_or_else(PoisonError::into_inner) = Some(payload.clone());
+        let key = self.links.posegraph.key_expr();
+        self.links.posegraph.put(payload).await.map_err(zenoh_error("publish on", key.as_str()))?;
+        self.summary.posegraph_revision = update.revision;
+        self.summary.optimised_keyframes = update.poses;
+        info!("robot {}: pose graph revision {}, {} loops", self.robot, update.revision, self.summary.loops);
         Ok(())
     }
 

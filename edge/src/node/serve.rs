@@ -1,4 +1,5 @@
-//! The keyframe store's queryable: answers `KeyframeRequest`s with the keyframes still held.
+//! The node's queryables: the keyframe store answers `KeyframeRequest`s with the keyframes still
+//! held; the pose-graph key answers with the newest update.
 
 use std::sync::{Arc, Mutex, PoisonError};
 
@@ -6,6 +7,7 @@ use prost::Message;
 use proto::KeyframeRequest;
 use tokio::sync::oneshot;
 use tracing::{debug, warn};
+use zenoh::bytes::ZBytes;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::query::{Query, Queryable};
 
@@ -52,6 +54,33 @@ async fn answer(query: &Query, store: &Mutex<Store>) {
             warn!("cannot reply keyframe {seq} on {key}: {e}");
             return;
         }
+    }
+}
+
+/// Serves queries on the pose-graph key with the newest update (none yet: no reply) until `stop`.
+pub(crate) async fn serve_latest(
+    queryable: Queryable<FifoChannelHandler<Query>>,
+    latest: Arc<Mutex<Option<ZBytes>>>,
+    mut stop: oneshot::Receiver<()>,
+) {
+    loop {
+        tokio::select! {
+            _ = &mut stop => break,
+            query = queryable.recv_async() => match query {
+                Ok(query) => {
+                    let held = latest.lock().unwrap_or_else(PoisonError::into_inner).clone();
+                    if let Some(payload) = held
+                        && let Err(e) = query.reply(query.key_expr().clone(), payload).await
+                    {
+                        warn!("cannot reply the pose graph on {}: {e}", query.key_expr());
+                    }
+                }
+                Err(_) => break,
+            },
+        }
+    }
+    if let Err(e) = queryable.undeclare().await {
+        warn!("cannot undeclare the pose-graph queryable: {e}");
     }
 }
 

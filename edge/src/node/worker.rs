@@ -12,6 +12,8 @@ use tokio::sync::mpsc;
 use tracing::{error, warn};
 
 use super::{NodeError, Rate};
+use crate::loops::LoopCloser;
+use crate::loops::scan_context::{ScanContext, ScanContextConfig};
 use crate::memory::release_periodically;
 use crate::odometry::{Keyframe, Odometry};
 use crate::source::{Source, SourceScan};
@@ -28,6 +30,21 @@ pub(crate) struct Registered {
     pub ground_truth: Option<Isometry3<f64>>,
     /// The keyframe the scan made, encoded for the wire.
     pub keyframe: Option<EncodedKeyframe>,
+    /// The pose graph, when the keyframe's loop re-optimised it.
+    pub posegraph: Option<EncodedPoseGraph>,
+    /// Loops in the graph after this scan.
+    pub loops: usize,
+}
+
+/// A `emr.v1.PoseGraphUpdate` protobuf encoding.
+#[derive(Debug)]
+pub(crate) struct EncodedPoseGraph {
+    /// Its revision.
+    pub revision: u64,
+    /// The optimised keyframe poses it holds, by keyframe index.
+    pub poses: Vec<Isometry3<f64>>,
+    /// The message bytes.
+    pub payload: Vec<u8>,
 }
 
 /// A keyframe's `emr.v1.Keyframe` protobuf encoding.
@@ -53,6 +70,10 @@ pub(crate) struct Worker {
     pub codec: CodecConfig,
     /// How fast scans are read.
     pub rate: Rate,
+    /// The loop closure, unless off (the paper's MR mode).
+    pub loops: Option<LoopCloser>,
+    /// How descriptors are made when the loop closure is off (they still go on the wire).
+    pub scan_context: ScanContextConfig,
 }
 
 impl Worker {
@@ -88,18 +109,48 @@ impl Worker {
         }
     }
 
-    /// Odometry on one scan, and its keyframe's message if it made one.
+    /// Odometry on one scan, and its keyframe's message if it made one (with the pose graph's when
+    /// the keyframe closed a loop that changed it).
     fn register(&mut self, scan: SourceScan) -> Result<Registered, NodeError> {
         let frame = self
             .odometry
             .register(&scan.cloud, scan.stamp)
             .map_err(|source| NodeError::Odometry { index: scan.index, source })?;
-        let keyframe = frame.keyframe.map(|kf| self.encode(&kf, scan.stamp)).transpose()?;
-        Ok(Registered { pose: frame.pose, stamp: scan.stamp, ground_truth: scan.ground_truth, keyframe })
+        let (mut keyframe, mut posegraph) = (None, None);
+        if let Some(kf) = &frame.keyframe {
+            let step = match &mut self.loops {
+                Some(loops) => Some(loops.add(kf).map_err(|source| NodeError::Loops { seq: kf.seq, source })?),
+                None => None,
+            };
+            let context = match &step {
+                Some(step) => step.context.clone(),
+                None => ScanContext::new(&kf.cloud, &self.scan_context),
+            };
+            keyframe = Some(self.encode(kf, scan.stamp, &context)?);
+            if step.is_some_and(|s| s.optimised.is_some())
+                && let Some(loops) = &self.loops
+            {
+                let msg = wire::posegraph_message(&self.fleet, self.robot, loops);
+                posegraph = Some(EncodedPoseGraph {
+                    revision: msg.revision,
+                    poses: loops.poses().to_vec(),
+                    payload: msg.encode_to_vec(),
+                });
+            }
+        }
+        let loops = self.loops.as_ref().map_or(0, |l| l.loops().count());
+        Ok(Registered {
+            pose: frame.pose,
+            stamp: scan.stamp,
+            ground_truth: scan.ground_truth,
+            keyframe,
+            posegraph,
+            loops,
+        })
     }
 
-    fn encode(&self, kf: &Keyframe, stamp: f64) -> Result<EncodedKeyframe, NodeError> {
-        let msg = wire::keyframe_message(&self.fleet, self.robot, kf, stamp, &self.codec)
+    fn encode(&self, kf: &Keyframe, stamp: f64, context: &ScanContext) -> Result<EncodedKeyframe, NodeError> {
+        let msg = wire::keyframe_message(&self.fleet, self.robot, kf, stamp, Some(context), &self.codec)
             .map_err(|source| NodeError::Encode { seq: kf.seq, source })?;
         Ok(EncodedKeyframe { seq: kf.seq, payload: msg.encode_to_vec() })
     }

@@ -54,6 +54,19 @@ pub fn align(
     if source.len() < config.neighbours || map.len() < config.neighbours {
         return None;
     }
+    let source = GaussianCloud::new(source, config.neighbours);
+    let target = GaussianCloud::new(map, config.neighbours);
+    align_gaussians(&source, &target, initial, config)
+}
+
+/// [`align`] on clouds whose covariances are already estimated (e.g. a target the caller also
+/// uses for a fine fit).
+pub fn align_gaussians(
+    source: &GaussianCloud,
+    target: &GaussianCloud,
+    initial: &Isometry3<f64>,
+    config: &CoarseConfig,
+) -> Option<Isometry3<f64>> {
     let registration = RegistrationConfig {
         max_iterations: config.max_iterations,
         max_correspondence_distance: config.max_correspondence,
@@ -64,8 +77,6 @@ pub fn align(
         voxel_search: VoxelSearch::Direct7,
         ..RegistrationConfig::default()
     };
-    let source = GaussianCloud::new(source, config.neighbours);
-    let target = GaussianCloud::new(map, config.neighbours);
-    let result = registration::align_gaussians(&source, &target, initial, Method::Vgicp, &registration).ok()?;
+    let result = registration::align_gaussians(source, target, initial, Method::Vgicp, &registration).ok()?;
     (result.inliers >= config.neighbours).then_some(result.transform)
 }

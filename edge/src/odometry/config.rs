@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 pub use super::coarse::CoarseConfig;
 pub use super::health::HealthConfig;
 pub use super::motion_model::MotionModelConfig;
+pub use crate::loops::LoopConfig;
 
 /// Feature extraction parameters (F-LOAM's reference values unless noted).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -238,6 +239,9 @@ pub struct OdometryConfig {
     /// the difference makes on a point 10 m away (m). Default 0.03 (0.17°): tighter costs more
     /// without a better trajectory, looser loses robots at the warehouse's corners.
     pub deskew_tolerance: f64,
+    /// Loop closure (run beside the odometry by `emr-edge odometry` and `emr-edge run` unless
+    /// `--no-loops`; the odometry itself does not use it).
+    pub loops: LoopConfig,
 }
 
 impl Default for OdometryConfig {
@@ -295,6 +299,7 @@ impl OdometryConfig {
             deskew: true,
             deskew_rounds: 3,
             deskew_tolerance: 0.03,
+            loops: LoopConfig::preset(Preset::Indoor),
         }
     }
 
@@ -326,6 +331,7 @@ impl OdometryConfig {
             },
             keyframes: KeyframeConfig { distance: 2.0, angle_deg: 15.0, voxel: 0.2 },
             solver: SolverConfig { degeneracy_ratio: 0.002, min_line_elevation_deg: 30.0, ..SolverConfig::default() },
+            loops: LoopConfig::preset(Preset::Outdoor),
             ..Self::indoor()
         }
     }

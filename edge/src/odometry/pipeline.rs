@@ -20,7 +20,9 @@ use serde::Serialize;
 
 use super::config::OverlayError;
 use super::stats::{RunStats, RunSummary};
-use super::{Odometry, OdometryConfig, OdometryError};
+use super::{Frame, Odometry, OdometryConfig, OdometryError};
+use crate::loops::LoopError;
+use crate::loops::track::{LoopSummary, LoopTrack};
 use crate::memory::{MemoryTrace, MemoryWatch, peak_rss_mb};
 use crate::recording::{RecordingOptions, RingModel, Spin, TimeModel};
 use crate::source::{Source, SourceError, SourceScan, SourceSpec};
@@ -59,6 +61,9 @@ pub enum PipelineError {
     /// The report cannot be serialised.
     #[error(transparent)]
     Json(#[from] serde_json::Error),
+    /// The loop closure failed.
+    #[error(transparent)]
+    Loops(#[from] LoopError),
 }
 
 /// Where the odometry configuration comes from, applied in this order.
@@ -192,6 +197,8 @@ pub fn read_all(source: Source) -> Result<Vec<SourceScan>, SourceError> {
 pub struct Pass {
     /// Estimated sensor poses at the sweep ends, with the sweeps' start stamps.
     pub estimate: Trajectory,
+    /// The source's index of each registered scan (undecodable scans are skipped).
+    pub scans: Vec<usize>,
     /// The source's ground-truth poses (world frame), when it knows them.
     pub truth: Vec<Isometry3<f64>>,
     /// Per-scan figures: wall time, stages, features, degeneracy.
@@ -213,14 +220,16 @@ impl Pass {
     }
 }
 
-/// Registers `scans` in order with `odometry`, timing each; `observe` sees the pass after every scan.
+/// Registers `scans` in order with `odometry`, timing each; `observe` sees the pass and the frame
+/// after every scan, and stops the pass with its error.
 pub fn register<S: Borrow<SourceScan>>(
     odometry: &mut Odometry,
     scans: impl IntoIterator<Item = S>,
-    mut observe: impl FnMut(&Pass),
+    mut observe: impl FnMut(&Pass, &Frame) -> Result<(), PipelineError>,
 ) -> Result<Pass, PipelineError> {
     let mut pass = Pass {
         estimate: Trajectory { poses: vec![], stamps: Some(vec![]) },
+        scans: vec![],
         truth: vec![],
         stats: RunStats::default(),
         cpu_ms: vec![],
@@ -242,7 +251,8 @@ pub fn register<S: Borrow<SourceScan>>(
         pass.estimate.poses.push(frame.pose);
         pass.estimate.stamps.get_or_insert_default().push(scan.stamp);
         pass.truth.extend(scan.ground_truth);
-        observe(&pass);
+        pass.scans.push(scan.index);
+        observe(&pass, &frame)?;
     }
     Ok(pass)
 }
@@ -299,6 +309,13 @@ pub struct OdometryReport {
     pub path_length_m: Option<f64>,
     /// Scans the source gave but could not be decoded, each with its file and reason.
     pub skipped_scans: Vec<SkippedScan>,
+    /// With loop closure: its figures.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub loops: Option<LoopSummary>,
+    /// With loop closure and ground truth: the ATE of the odometry before the loops (`ate_rmse_m`
+    /// is then the optimised trajectory's).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub odometry_ate_rmse_m: Option<AteRmse>,
 }
 
 impl OdometryReport {
@@ -310,15 +327,19 @@ impl OdometryReport {
 
 /// The odometry over one source into one output directory: OUT/poses_kitti.txt (a line per scan,
 /// sensor frame at the sweep end, first pose identity), OUT/poses_tum.txt (the same with stamps),
-/// OUT/stats.json ([`OdometryReport`]) and, with ground truth, OUT/poses_gt_kitti.txt.
+/// OUT/stats.json ([`OdometryReport`]) and, with ground truth, OUT/poses_gt_kitti.txt. With loop
+/// closure ([`OdometryPipeline::with_loops`]) the poses are the optimised ones, and it also writes
+/// OUT/poses_odometry_kitti.txt (before the loops), OUT/graph.g2o (the keyframe pose graph) and
+/// OUT/loops.json ([`crate::loops::track::LoopsFile`]).
 pub struct OdometryPipeline {
     source: Source,
     config: OdometryConfig,
+    loops: bool,
     out: PathBuf,
 }
 
 impl OdometryPipeline {
-    /// Opens the source and creates the output directory.
+    /// Opens the source and creates the output directory; no loop closure.
     pub fn new(
         input: &SourceSpec,
         topic: Option<String>,
@@ -328,28 +349,51 @@ impl OdometryPipeline {
     ) -> Result<Self, PipelineError> {
         let source = open(input, topic, max_frames, &config)?;
         std::fs::create_dir_all(out).map_err(|source| PipelineError::CreateDir { path: out.to_owned(), source })?;
-        Ok(OdometryPipeline { source, config, out: out.to_owned() })
+        Ok(OdometryPipeline { source, config, loops: false, out: out.to_owned() })
+    }
+
+    /// The same with loop closure on (configured by the configuration's `loops`) or off (the
+    /// paper's MR mode).
+    pub fn with_loops(self, loops: bool) -> Self {
+        OdometryPipeline { loops, ..self }
     }
 
     /// How many scans the source will give, when known in advance.
-    pub fn len(&self) -> Option<usize> {
+    pub fn expected_scans(&self) -> Option<usize> {
         self.source.len
     }
 
     /// Registers every scan (`progress` is told after each how many are done), writes the outputs
     /// and returns the report.
     pub fn run(self, mut progress: impl FnMut(usize)) -> Result<OdometryReport, PipelineError> {
+        let mut track = self.loops.then(|| LoopTrack::new(self.config.loops.clone()));
         let mut odometry = Odometry::new(self.config)?;
         let mut memory = MemoryWatch::new(self.source.len);
         let mut scans = Scans::new(self.source);
-        let pass = register(&mut odometry, scans.by_ref(), |pass| {
+        let pass = register(&mut odometry, scans.by_ref(), |pass, frame| {
+            if let Some(track) = &mut track {
+                track.observe(frame)?;
+            }
             memory.observe(pass.len());
             progress(pass.len());
+            Ok(())
         })?;
         let summary = pass.stats.summary();
         let peak_rss_mb = peak_rss_mb();
         let rss_mb = memory.finish();
-        let accuracy = evaluate(&pass.truth, &pass.estimate.poses)?;
+        let mut estimate = pass.estimate.clone();
+        if let Some(track) = &track {
+            estimate.poses = track.corrected();
+            write(&self.out.join("poses_odometry_kitti.txt"), &pass.estimate.to_kitti())?;
+            write(&self.out.join("loops.json"), &serde_json::to_string_pretty(&track.file(&pass.scans))?)?;
+            let graph = track.closer().graph().map_err(LoopError::from)?;
+            write(&self.out.join("graph.g2o"), &crate::pose_graph::g2o::write(&graph))?;
+        }
+        let accuracy = evaluate(&pass.truth, &estimate.poses)?;
+        let odometry_accuracy = match &track {
+            Some(_) => evaluate(&pass.truth, &pass.estimate.poses)?,
+            None => None,
+        };
         let report = OdometryReport {
             summary,
             peak_rss_mb,
@@ -357,12 +401,14 @@ impl OdometryPipeline {
             ate_rmse_m: accuracy.as_ref().map(|a| a.ate),
             path_length_m: accuracy.as_ref().map(|a| a.path_length_m),
             skipped_scans: scans.skipped().to_vec(),
+            loops: track.as_ref().map(LoopTrack::summary),
+            odometry_ate_rmse_m: odometry_accuracy.map(|a| a.ate),
         };
         if let Some(accuracy) = &accuracy {
             write(&self.out.join("poses_gt_kitti.txt"), &accuracy.truth.to_kitti())?;
         }
-        write(&self.out.join("poses_kitti.txt"), &pass.estimate.to_kitti())?;
-        write(&self.out.join("poses_tum.txt"), &pass.estimate.to_tum())?;
+        write(&self.out.join("poses_kitti.txt"), &estimate.to_kitti())?;
+        write(&self.out.join("poses_tum.txt"), &estimate.to_tum())?;
         write(&self.out.join("stats.json"), &report.to_json()?)?;
         scans.finish()?;
         Ok(report)

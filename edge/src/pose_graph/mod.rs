@@ -26,7 +26,7 @@ pub mod synthetic;
 pub mod system;
 
 use nalgebra::{Isometry3, Matrix6, SymmetricEigen};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 pub use kernel::Kernel;
 
@@ -57,7 +57,7 @@ pub struct Edge {
 
 /// How a pose graph is optimised. The stopping rules and λ schedule are GTSAM's
 /// `LevenbergMarquardtParams` defaults.
-#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PoseGraphConfig {
     /// Linearisations at most. Default 100 (GTSAM).

@@ -124,7 +124,7 @@ pub fn run_ours(case: &Case, criterion: &HoldCriterion) -> Outcome {
     };
     let pass = pool.install(|| -> Result<_, String> {
         let mut odometry = Odometry::new(config).map_err(|e| chain(&e))?;
-        pipeline::register(&mut odometry, &scans, |_| {}).map_err(|e| chain(&e))
+        pipeline::register(&mut odometry, &scans, |_, _| Ok(())).map_err(|e| chain(&e))
     });
     let pass = match pass {
         Ok(pass) => pass,

@@ -4,9 +4,9 @@
 //! The steps that do not depend on what the clouds are live in [`cloud::global`], shared with the
 //! robots' re-localisation: features of one map (steps 1-4: preprocess, normals, Harris keypoints,
 //! FPFH; [`Features::compute`]), then matching, RANSAC and a point-to-plane polish (steps 5-7;
-//! [`cloud::global::estimate()`]). What is about merging maps is here: [`confidence`] scores the
-//! result and decides whether it is reliable; [`align`] and [`register`] put the two together, and
-//! [`bench`] times them. The output transform maps SOURCE points into the TARGET frame; fine
+//! [`cloud::global::estimate()`]). What is about merging maps is here: [`confidence`] (in `cloud`,
+//! shared with the robots' loop closure) scores the result and decides whether it is reliable;
+//! [`align`] and [`register`] put the two together, and [`bench`] times them. The output transform maps SOURCE points into the TARGET frame; fine
 //! registration (VGICP) is left to the caller.
 //!
 //! A station merging many maps computes each map's features once and calls [`align`] per pair;
@@ -14,7 +14,8 @@
 //! points) gives an error or [`PairwiseOutcome::NotAligned`], never a panic.
 
 pub mod bench;
-pub mod confidence;
+
+pub use cloud::confidence;
 
 use std::time::Duration;
 

@@ -70,6 +70,11 @@ impl RobotState {
         &self.keyframes
     }
 
+    /// The newest pose-graph revision accepted, if any.
+    pub fn pose_revision(&self) -> Option<u64> {
+        self.pose_revision
+    }
+
     /// The best pose of keyframe `seq`: the optimised one if any, else the odometry pose.
     pub fn pose(&self, seq: u64) -> Option<Isometry3<f64>> {
         self.poses.get(&seq).copied().or_else(|| self.keyframes.get(&seq).map(|k| k.odom_pose))

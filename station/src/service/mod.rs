@@ -85,6 +85,8 @@ pub enum StationError {
 pub struct StationProgress {
     /// Keyframes held per robot.
     pub keyframes: BTreeMap<u32, usize>,
+    /// Newest pose-graph revision accepted per robot (robots that sent none are absent).
+    pub pose_revisions: BTreeMap<u32, u64>,
     /// Keyframes known to be missing (gaps below each robot's newest), over all robots.
     pub missing: usize,
     /// Payloads rejected since start.

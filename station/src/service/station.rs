@@ -209,7 +209,7 @@ impl Endpoints {
 
 /// Messages from the station's helper tasks to its loop.
 enum Event {
-    /// A reply to a backfill request to `robot`.
+    /// A reply to a backfill request to `robot`: a keyframe, or the robot's newest pose graph.
     Reply { robot: u32, sample: Sample },
     /// The backfill request to `robot` has completed.
     BackfillDone { robot: u32 },
@@ -412,8 +412,11 @@ impl Core {
     fn on_event(&mut self, event: Event) {
         match event {
             Event::Reply { robot, sample } => {
-                let bytes = sample.payload().to_bytes();
-                self.on_keyframe(robot, sample.key_expr().as_str(), &bytes, Origin::Backfill);
+                let (key, bytes) = (sample.key_expr().as_str(), sample.payload().to_bytes());
+                match Topic::parse(key) {
+                    Some(Topic::PoseGraph { .. }) => self.on_poses(robot, key, &bytes),
+                    _ => self.on_keyframe(robot, key, &bytes, Origin::Backfill),
+                }
             }
             Event::BackfillDone { robot } => self.backfill.done(robot),
         }
@@ -425,6 +428,12 @@ impl Core {
             debug!("asking robot {robot} for {} keyframes, from {:?}", request.seqs.len(), request.from_seq);
             self.counters.backfill_requests += 1;
             let key = keyexpr::keyframe_store(&self.fleet, robot);
+            // A robot that (re)appeared may have optimised its graph while this station was not
+            // listening: its newest update supersedes all earlier ones, so it is asked for too.
+            if request.from_seq.is_some() {
+                let posegraph = keyexpr::posegraph(&self.fleet, robot);
+                tokio::spawn(fetch_posegraph(self.session.clone(), posegraph, robot, self.events.clone()));
+            }
             tokio::spawn(fetch(self.session.clone(), key, robot, request, self.events.clone()));
         }
     }
@@ -523,10 +532,12 @@ impl Core {
         let s = &self.state;
         let c = &self.counters;
         let keyframes = s.keyframe_counts();
+        let pose_revisions = s.robots().iter().filter_map(|(&r, state)| Some((r, state.pose_revision()?))).collect();
         let missing = s.robots().values().map(|r| r.missing_count() as usize).sum();
         self.progress.send_if_modified(|p| {
             let next = StationProgress {
                 keyframes,
+                pose_revisions,
                 missing,
                 malformed: c.malformed,
                 conflicts: s.total_conflicts(),
@@ -602,6 +613,29 @@ async fn ask(
         Err(e) => warn!("cannot query {key}: {e}"),
     }
     answers
+}
+
+/// Asks a robot for its newest pose graph; the reply goes to the loop. A robot that has none yet
+/// does not answer, which cannot be told from a queryable not declared yet: asked a few times.
+async fn fetch_posegraph(session: Session, key: String, robot: u32, events: mpsc::UnboundedSender<Event>) {
+    for attempt in 1..=FETCH_ATTEMPTS {
+        let mut answered = false;
+        match session.get(&key).timeout(BACKFILL_TIMEOUT).await {
+            Ok(replies) => {
+                while let Ok(reply) = replies.recv_async().await {
+                    if let Ok(sample) = reply.result() {
+                        answered = true;
+                        let _ = events.send(Event::Reply { robot, sample: sample.clone() });
+                    }
+                }
+            }
+            Err(e) => warn!("cannot query {key}: {e}"),
+        }
+        if answered || attempt == FETCH_ATTEMPTS {
+            break;
+        }
+        tokio::time::sleep(FETCH_RETRY).await;
+    }
 }
 
 /// Sleeps until `deadline` (forever when there is none).

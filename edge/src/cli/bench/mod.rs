@@ -1,6 +1,7 @@
 //! `emr-edge bench`: speed and size figures on real data.
 
 mod codec;
+mod loops;
 mod odometry;
 mod posegraph;
 mod robustness;
@@ -13,6 +14,7 @@ use edge::odometry::pipeline::{self, Tuning};
 
 use super::sim::{SensorArg, scenario_values};
 use super::{SourceArgs, TuningArgs};
+use loops::LoopsArgs;
 use robustness::RobustnessArgs;
 
 #[derive(Subcommand, Debug)]
@@ -82,6 +84,11 @@ pub enum BenchCommand {
         #[arg(long)]
         write_synthetic: Option<PathBuf>,
     },
+    /// Loop closure (issue 14), the paper's comparison: MR (odometry only) against EMR (with loops)
+    /// on the simulated robots that revisit places and on the aisles' identical rows: ATE of both,
+    /// loops accepted, false loops (more than 0.3 m or 2 deg from the true relative pose), loop
+    /// milliseconds per keyframe on one core.
+    Loops(LoopsArgs),
     /// Fine registration (GICP, VGICP): median time per registration on one thread and on all, and
     /// the error against the reference pose, on DIR/{source,target}.ply and DIR/T_target_source.txt.
     Gicp {
@@ -119,6 +126,7 @@ pub fn bench(what: BenchCommand) -> Result<()> {
         BenchCommand::Posegraph { data, poses, runs, write_synthetic } => {
             println!("{}", posegraph::posegraph(&data, poses, runs, write_synthetic.as_deref())?)
         }
+        BenchCommand::Loops(args) => loops::loops(args)?,
         BenchCommand::Gicp { data, runs } => println!("{}", cloud::registration::bench::gicp(&data, runs)?),
         BenchCommand::Global { data, runs } => {
             let (source, target, reference) =

@@ -78,7 +78,7 @@ pub fn odometry(scans: &[SourceScan], config: &OdometryConfig, runs: usize) -> R
     for _ in 0..runs.max(1) {
         let pass = pool.install(|| -> Result<_> {
             let mut odometry = Odometry::new(config.clone())?;
-            Ok(pipeline::register(&mut odometry, scans, |_| {})?)
+            Ok(pipeline::register(&mut odometry, scans, |_, _| Ok(()))?)
         })?;
         // `median` sorts: the 95th percentile is then an index away.
         let mut ms = pass.stats.ms().to_vec();

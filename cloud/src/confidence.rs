@@ -1,4 +1,5 @@
-//! Confidence of an alignment: map_merge_3d's score and an overlap-aware one.
+//! Confidence of an alignment: map_merge_3d's score and an overlap-aware one. The station scores
+//! map merges with it, the robots their loop closures.
 //!
 //! - **Fitness** (map_merge_3d, `transformScore` via PCL's `TransformationValidationEuclidean`):
 //!   `1 / mean(d²)` over the source points whose nearest target point, after the transform, is
@@ -12,11 +13,11 @@
 //!   consistent matches on a small common part has inliers but little overlap. The geometric mean
 //!   makes the score low as soon as either is, and keeps it in [0, 1].
 
-use cloud::kdtree::KdTree;
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
-use super::FeatureError;
+use crate::global::FeatureError;
+use crate::kdtree::KdTree;
 
 /// Settings of the confidence scores and of the acceptance test.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -1,0 +1,445 @@
+//! Loop closure on one robot, EMR-FLOAM's "E": each keyframe is described, compared with the places
+//! the robot passed long enough ago, verified geometrically, checked against the odometry and the
+//! other loops, and the keyframe pose graph is re-optimised when the accepted loops change.
+//!
+//! Per keyframe ([`LoopCloser::add`]):
+//! 1. [`scan_context`]: the Scan Context descriptor and its ring key;
+//! 2. [`candidates`]: the `candidates` nearest ring keys among keyframes at least
+//!    `exclude_recent_m` metres of path behind, then the best by the full descriptor distance;
+//! 3. [`verify`]: the keyframe registered against a submap around the best candidate, from the
+//!    descriptor's yaw, accepted on overlap and constraint;
+//! 4. [`consistency`]: the loop against the odometry, then the largest set of mutually consistent
+//!    loops, which are the ones in the graph;
+//! 5. [`graph`]: the pose graph re-optimised when that set changed.
+//!
+//! No I/O: the odometry pipeline and the node call it and write or publish what it says.
+
+pub mod candidates;
+pub mod consistency;
+pub mod graph;
+pub mod scan_context;
+pub mod track;
+pub mod verify;
+
+use std::collections::VecDeque;
+use std::fmt;
+use std::sync::Arc;
+
+use cloud::registration::GaussianCloud;
+use cloud::stopwatch::Stopwatch;
+use cloud::{PointCloud, Preset};
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::odometry::Keyframe;
+use crate::pose_graph::{Edge, EdgeKind, PoseGraph, PoseGraphError, Report};
+use candidates::RingKeyIndex;
+use consistency::{ConsistencyConfig, LoopView};
+use graph::{GraphConfig, KeyframeGraph};
+use scan_context::{ScanContext, ScanContextConfig};
+use verify::{Fit, Verdict, VerifyConfig};
+
+/// Settings of the loop closure, one section per step.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LoopConfig {
+    /// The descriptor.
+    pub scan_context: ScanContextConfig,
+    /// Ring-key neighbours compared by the full descriptor. Default 10 (Scan Context's).
+    pub candidates: usize,
+    /// A candidate farther than this descriptor distance is not verified. Default 0.35: looser
+    /// than Scan Context's 0.13 (SC-A-LOAM uses 0.2-0.4), because verification and the consistency
+    /// tests, not the descriptor, decide.
+    pub max_descriptor_distance: f64,
+    /// Keyframes less than this much path behind are not candidates (m): they trivially look
+    /// alike and their relative pose is the odometry's. Default 30 m.
+    pub exclude_recent_m: f64,
+    /// Keyframes after a verified loop that are not verified themselves. Default 2: along a
+    /// revisit every keyframe matches, and a loop every third keyframe constrains the graph as well
+    /// as one at each (Scan Context's loop thread runs at 1 Hz for the same reason).
+    pub cooldown_keyframes: usize,
+    /// Geometric verification.
+    pub verify: VerifyConfig,
+    /// Consistency with the odometry and between loops.
+    pub consistency: ConsistencyConfig,
+    /// The pose graph.
+    pub graph: GraphConfig,
+}
+
+impl Default for LoopConfig {
+    fn default() -> Self {
+        LoopConfig {
+            scan_context: ScanContextConfig::default(),
+            candidates: 10,
+            max_descriptor_distance: 0.35,
+            exclude_recent_m: 30.0,
+            cooldown_keyframes: 2,
+            verify: VerifyConfig::default(),
+            consistency: ConsistencyConfig::default(),
+            graph: GraphConfig::default(),
+        }
+    }
+}
+
+impl LoopConfig {
+    /// The settings for a preset: indoors Scan Context covers 40 m (walls farther away are seen
+    /// through racks, if at all), outdoors its 80 m and coarser verification clouds.
+    pub fn preset(preset: Preset) -> Self {
+        let mut config = LoopConfig::default();
+        match preset {
+            Preset::Indoor => config.scan_context.max_range = 40.0,
+            Preset::Outdoor => {
+                config.verify.voxel = 0.5;
+                config.verify.overlap_distance = 1.0;
+            }
+        }
+        config
+    }
+}
+
+/// The most recently used places' covariances (least recently used evicted first).
+#[derive(Default)]
+struct GaussianCache {
+    entries: VecDeque<(usize, Arc<GaussianCloud>)>,
+}
+
+impl GaussianCache {
+    fn get_or_insert(&mut self, k: usize, capacity: usize, make: impl FnOnce() -> GaussianCloud) -> Arc<GaussianCloud> {
+        let entry = match self.entries.iter().position(|(i, _)| *i == k) {
+            Some(at) => self.entries.remove(at).expect("the position is in range"),
+            None => (k, Arc::new(make())),
+        };
+        let cloud = entry.1.clone();
+        self.entries.push_front(entry);
+        self.entries.truncate(capacity.max(1));
+        cloud
+    }
+}
+
+/// A keyframe as the loop closure keeps it.
+#[derive(Clone, Debug)]
+pub struct Place {
+    /// Keyframe sequence number.
+    pub seq: u64,
+    /// Index of the scan that made it.
+    pub scan: usize,
+    /// Odometry pose.
+    pub odometry: Isometry3<f64>,
+    /// Odometry path length from the first keyframe (m).
+    pub path_m: f64,
+    /// Its descriptor.
+    pub context: ScanContext,
+    /// Its cloud, thinned for verification.
+    cloud: PointCloud,
+}
+
+/// A loop between keyframes `a` (older) and `b`, verified geometrically.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Loop {
+    /// Older keyframe (index = sequence number).
+    pub a: usize,
+    /// Newer keyframe.
+    pub b: usize,
+    /// Scan Context distance of the pair.
+    pub descriptor_distance: f64,
+    /// The verification's fit: `transform` maps `b`'s points into `a`'s frame.
+    pub fit: Fit,
+}
+
+/// Why a candidate did not become a loop in the graph.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Rejection {
+    /// A cloud was too small or degenerate to register.
+    Unregistrable,
+    /// Too little of the keyframe lay on the candidate's submap after the fit.
+    LowOverlap,
+    /// The fit left a translation direction nearly free (a corridor, a row of shelves).
+    Degenerate,
+    /// The loop disagrees with the odometry by more than it can have drifted.
+    Odometry,
+    /// The loop is not in the largest set of loops that agree with each other.
+    Inconsistent,
+}
+
+impl fmt::Display for Rejection {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Rejection::Unregistrable => "too few points to register",
+            Rejection::LowOverlap => "low overlap after registration",
+            Rejection::Degenerate => "registration leaves a direction unconstrained",
+            Rejection::Odometry => "disagrees with the odometry beyond its drift",
+            Rejection::Inconsistent => "disagrees with the other loops",
+        })
+    }
+}
+
+/// A candidate that is not in the graph, and why.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Rejected {
+    /// Older keyframe.
+    pub a: usize,
+    /// Newer keyframe.
+    pub b: usize,
+    /// Scan Context distance of the pair.
+    pub descriptor_distance: f64,
+    /// The fit, when the registration ran.
+    pub fit: Option<Fit>,
+    /// Why.
+    pub reason: Rejection,
+}
+
+/// What one keyframe did to the loop closure.
+#[derive(Clone, Debug)]
+pub struct Step {
+    /// The keyframe's descriptor (for the wire).
+    pub context: ScanContext,
+    /// The optimisation, when the loops in the graph changed.
+    pub optimised: Option<Report>,
+    /// Milliseconds spent describing, searching and verifying (optimisation excluded).
+    pub detect_ms: f64,
+}
+
+/// Why the loop closure failed.
+#[derive(Debug, thiserror::Error)]
+pub enum LoopError {
+    /// The pose graph could not be optimised.
+    #[error("pose graph: {0}")]
+    Graph(#[from] PoseGraphError),
+}
+
+/// One robot's loop closure (see the module documentation).
+pub struct LoopCloser {
+    config: LoopConfig,
+    places: Vec<Place>,
+    index: RingKeyIndex,
+    /// Places `..indexed` are in the ring-key index.
+    indexed: usize,
+    verified: Vec<Loop>,
+    rejected: Vec<Rejected>,
+    /// Indices into `verified` of the loops in the graph.
+    in_graph: Vec<usize>,
+    graph: KeyframeGraph,
+    /// Covariances of recently used places, in their own frames.
+    gaussians: GaussianCache,
+    /// The last keyframe that verified a loop.
+    last_loop: Option<usize>,
+}
+
+impl LoopCloser {
+    /// A loop closure with no keyframe yet.
+    pub fn new(config: LoopConfig) -> Self {
+        LoopCloser {
+            config,
+            places: Vec::new(),
+            index: RingKeyIndex::default(),
+            indexed: 0,
+            verified: Vec::new(),
+            rejected: Vec::new(),
+            in_graph: Vec::new(),
+            graph: KeyframeGraph::default(),
+            gaussians: GaussianCache::default(),
+            last_loop: None,
+        }
+    }
+
+    /// Adds the next keyframe (keyframes come in sequence order, from 0): describes it, looks for
+    /// a loop and re-optimises the graph if the loops in it changed.
+    pub fn add(&mut self, keyframe: &Keyframe) -> Result<Step, LoopError> {
+        let watch = Stopwatch::start();
+        let place = self.describe(keyframe);
+        let context = place.context.clone();
+        self.places.push(place);
+        let odometry: Vec<Isometry3<f64>> = self.places.iter().map(|p| p.odometry).collect();
+        self.graph.extend(&odometry);
+        self.index_aged_places();
+        let b = self.places.len() - 1;
+        let cooling = self.last_loop.is_some_and(|l| b - l <= self.config.cooldown_keyframes);
+        let candidate = if cooling { None } else { self.best_candidate(b) };
+        let found = candidate.is_some_and(|(a, distance, yaw)| self.check(a, b, distance, yaw));
+        if found {
+            self.last_loop = Some(b);
+        }
+        let detect_ms = watch.elapsed_ms();
+        let changed = found && self.update_loops_in_graph();
+        let optimised =
+            if changed { Some(self.graph.optimise(&odometry, &self.loop_edges(), &self.config.graph)?) } else { None };
+        Ok(Step { context, optimised, detect_ms })
+    }
+
+    /// Step 1: the place of a keyframe.
+    fn describe(&self, keyframe: &Keyframe) -> Place {
+        let path_m = self.places.last().map_or(0.0, |p| p.path_m + graph::step_length(&p.odometry, &keyframe.pose));
+        Place {
+            seq: keyframe.seq,
+            scan: keyframe.frame,
+            odometry: keyframe.pose,
+            path_m,
+            context: ScanContext::new(&keyframe.cloud, &self.config.scan_context),
+            cloud: verify::thin(&keyframe.cloud, &self.config.verify),
+        }
+    }
+
+    /// Puts the places that are now far enough behind into the ring-key index.
+    fn index_aged_places(&mut self) {
+        let Some(now) = self.places.last().map(|p| p.path_m) else { return };
+        while self.indexed < self.places.len() && self.places[self.indexed].path_m <= now - self.config.exclude_recent_m
+        {
+            let key = self.places[self.indexed].context.ring_key();
+            self.index.add(&key, self.indexed);
+            self.indexed += 1;
+        }
+    }
+
+    /// Step 2: the candidate with the smallest descriptor distance to place `b`, if close enough:
+    /// its index, the distance and the yaw of `b` in its frame.
+    fn best_candidate(&self, b: usize) -> Option<(usize, f64, f64)> {
+        let query = &self.places[b].context;
+        self.index
+            .nearest(&query.ring_key(), self.config.candidates)
+            .into_iter()
+            .map(|a| (a, self.places[a].context.distance(query, self.config.scan_context.shift_window)))
+            .min_by(|x, y| x.1.distance.total_cmp(&y.1.distance))
+            .filter(|(_, m)| m.distance <= self.config.max_descriptor_distance)
+            .map(|(a, m)| (a, m.distance, m.yaw))
+    }
+
+    /// Steps 3 and the odometry half of 4: whether the candidate became a verified loop.
+    fn check(&mut self, a: usize, b: usize, descriptor_distance: f64, yaw: f64) -> bool {
+        let initial = Isometry3::from_parts(Default::default(), UnitQuaternion::from_scaled_axis(Vector3::z() * yaw));
+        let submap = self.submap(a);
+        let keyframe = self.gaussians_of(b);
+        let verdict = verify::verify(&keyframe, &submap, &initial, &self.config.verify);
+        let reject = |reason, fit| Rejected { a, b, descriptor_distance, fit, reason };
+        let rejected = match verdict {
+            Verdict::Unregistrable => reject(Rejection::Unregistrable, None),
+            Verdict::LowOverlap(fit) => reject(Rejection::LowOverlap, Some(fit)),
+            Verdict::Degenerate(fit) => reject(Rejection::Degenerate, Some(fit)),
+            Verdict::Loop(fit) => {
+                let candidate = Loop { a, b, descriptor_distance, fit };
+                let margin = consistency::odometry_margin(&self.view(&candidate), &self.config.consistency);
+                tracing::debug!(a, b, margin, "odometry check");
+                if margin <= 1.0 {
+                    tracing::debug!(a, b, descriptor_distance, overlap = candidate.fit.overlap, "loop verified");
+                    self.verified.push(candidate);
+                    return true;
+                }
+                reject(Rejection::Odometry, Some(candidate.fit))
+            }
+        };
+        tracing::debug!(a, b, descriptor_distance, reason = %rejected.reason, "loop candidate rejected");
+        self.rejected.push(rejected);
+        false
+    }
+
+    /// The keyframes around place `a`, in `a`'s frame by odometry, with their covariances.
+    fn submap(&mut self, a: usize) -> GaussianCloud {
+        let w = self.config.verify.submap_keyframes;
+        let range = a.saturating_sub(w)..=(a + w).min(self.places.len() - 1);
+        let origin = self.places[a].odometry.inverse();
+        let (mut points, mut covariances) = (Vec::new(), Vec::new());
+        for k in range {
+            let (p, c) = self.gaussians_of(k).transformed(&(origin * self.places[k].odometry));
+            points.extend(p);
+            covariances.extend(c);
+        }
+        GaussianCloud::from_parts(points, covariances)
+    }
+
+    /// Place `k`'s cloud with covariances, from the cache or estimated now.
+    fn gaussians_of(&mut self, k: usize) -> Arc<GaussianCloud> {
+        let (cloud, config) = (&self.places[k].cloud, &self.config.verify);
+        self.gaussians.get_or_insert(k, config.cached_keyframes, || verify::gaussians(cloud, config))
+    }
+
+    /// The verified loop as the consistency tests see it.
+    fn view(&self, l: &Loop) -> LoopView {
+        let (a, b) = (&self.places[l.a], &self.places[l.b]);
+        LoopView {
+            odom_a: a.odometry,
+            odom_b: b.odometry,
+            path_a: a.path_m,
+            path_b: b.path_m,
+            transform: l.fit.transform,
+        }
+    }
+
+    /// The second half of step 4: the loops in the graph become the largest consistent set; true
+    /// when that changed it.
+    fn update_loops_in_graph(&mut self) -> bool {
+        let views: Vec<LoopView> = self.verified.iter().map(|l| self.view(l)).collect();
+        let set = consistency::largest_consistent_set(&views, &self.config.consistency);
+        let changed = set != self.in_graph;
+        self.in_graph = set;
+        changed
+    }
+
+    fn loop_edges(&self) -> Vec<Edge> {
+        self.loops()
+            .map(|l| Edge {
+                from: l.a,
+                to: l.b,
+                measurement: l.fit.transform,
+                information: l.fit.information,
+                kind: EdgeKind::Loop,
+            })
+            .collect()
+    }
+
+    /// The loops in the graph, in the order they were found.
+    pub fn loops(&self) -> impl Iterator<Item = &Loop> {
+        self.in_graph.iter().map(|&i| &self.verified[i])
+    }
+
+    /// Every candidate not in the graph: those that failed a test, then the verified ones the
+    /// other loops outvoted.
+    pub fn rejected(&self) -> Vec<Rejected> {
+        let mut all = self.rejected.clone();
+        all.extend(self.verified.iter().enumerate().filter(|(i, _)| !self.in_graph.contains(i)).map(|(_, l)| {
+            Rejected {
+                a: l.a,
+                b: l.b,
+                descriptor_distance: l.descriptor_distance,
+                fit: Some(l.fit.clone()),
+                reason: Rejection::Inconsistent,
+            }
+        }));
+        all
+    }
+
+    /// The keyframes so far.
+    pub fn places(&self) -> &[Place] {
+        &self.places
+    }
+
+    /// The keyframe poses with the loops applied (odometry frame), by keyframe index.
+    pub fn poses(&self) -> &[Isometry3<f64>] {
+        self.graph.poses()
+    }
+
+    /// How many optimisations have run: 0 while no loop is in the graph.
+    pub fn revision(&self) -> u64 {
+        self.graph.revision()
+    }
+
+    /// The pose of a scan registered at odometry pose `odometry_scan` after keyframe `k`, moved with
+    /// that keyframe.
+    pub fn follow(&self, k: usize, odometry_scan: &Isometry3<f64>) -> Isometry3<f64> {
+        match self.places.get(k) {
+            Some(place) => self.graph.follow(k, &place.odometry, odometry_scan),
+            None => *odometry_scan,
+        }
+    }
+
+    /// The keyframe pose graph as optimised (for `graph.g2o`): keyframe poses, odometry edges and
+    /// the loops.
+    pub fn graph(&self) -> Result<PoseGraph, PoseGraphError> {
+        let odometry: Vec<Isometry3<f64>> = self.places.iter().map(|p| p.odometry).collect();
+        graph::build(self.graph.poses(), &odometry, &self.loop_edges(), &self.config.graph)
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &LoopConfig {
+        &self.config
+    }
+}

@@ -1,0 +1,244 @@
+//! Scan Context (Kim & Kim, IROS 2018): a place descriptor of one scan, and the distance between two.
+//!
+//! The plane around the sensor is cut into `rings` annuli out to `max_range` and `sectors` equal
+//! azimuth wedges; a cell holds the highest point that falls in it (eq. 1), an empty cell 0. A
+//! revisit seen from another heading shifts the columns, so the distance (eq. 5) is the smallest
+//! over column shifts of one minus the mean cosine similarity of the columns that both scans see
+//! (eq. 4); the shift is the yaw between the two scans. Two cheaper keys find candidates first: the
+//! ring key (eq. 7, a ring's mean, invariant to yaw) for the k-d tree, and the sector key (a
+//! sector's mean) for aligning the columns before the fine shift search (as the authors' code does).
+
+use std::f64::consts::TAU;
+
+use cloud::PointCloud;
+use serde::{Deserialize, Serialize};
+
+/// How descriptors are made and compared.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ScanContextConfig {
+    /// Azimuth wedges. Default 60 (the paper's N_s: 6° each).
+    pub sectors: usize,
+    /// Radius covered, metres. Default 80 m (the paper's L_max; the indoor preset uses 40 m, where
+    /// a hall's walls are the structure worth describing).
+    pub max_range: f64,
+    /// Added to every height so that the ground and what stands on it are positive, metres.
+    /// Default 2 m (the authors' LIDAR_HEIGHT): a cell's value is the height above a plane 2 m
+    /// below the sensor, and a cell whose points all lie lower keeps 0, like an empty one.
+    pub height_offset: f64,
+    /// Columns searched either side of the sector-key alignment. Default 3 (the authors' 10 % of 60
+    /// sectors, halved).
+    pub shift_window: usize,
+}
+
+impl Default for ScanContextConfig {
+    fn default() -> Self {
+        ScanContextConfig { sectors: 60, max_range: 80.0, height_offset: 2.0, shift_window: 3 }
+    }
+}
+
+/// Annuli (the paper's N_r): fixed, because the ring key is a point of a k-d tree whose dimension is
+/// a type parameter.
+pub const RINGS: usize = 20;
+
+/// A scan's descriptor: `rings` x `sectors` cells, ring-major.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScanContext {
+    /// Annuli (rows).
+    pub rings: usize,
+    /// Wedges (columns).
+    pub sectors: usize,
+    /// Radius covered, metres.
+    pub max_range: f64,
+    /// `rings * sectors` heights, ring-major.
+    pub cells: Vec<f32>,
+}
+
+/// How close two descriptors are, and at which column shift.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Match {
+    /// Eq. (5): in [0, 1], 0 for identical descriptors; 1 when no column is seen by both.
+    pub distance: f64,
+    /// Columns `b` is rolled by to line up with `a`: column `j` of `a` matches column
+    /// `(j + shift) mod sectors` of `b`.
+    pub shift: usize,
+    /// The yaw of scan `b`'s frame in scan `a`'s frame that the shift implies, radians in (−π, π].
+    pub yaw: f64,
+}
+
+impl ScanContext {
+    /// The descriptor of `scan` (sensor frame, z up), eq. (1): the maximum height per cell.
+    pub fn new(scan: &PointCloud, config: &ScanContextConfig) -> Self {
+        let (rings, sectors) = (RINGS, config.sectors.max(1));
+        let mut cells = vec![0.0f32; rings * sectors];
+        for p in &scan.points {
+            let (x, y, z) = (f64::from(p.x), f64::from(p.y), f64::from(p.z));
+            let range = x.hypot(y);
+            if !range.is_finite() || range >= config.max_range || !z.is_finite() {
+                continue;
+            }
+            let ring = ((range / config.max_range) * rings as f64) as usize;
+            let sector = (azimuth(x, y) / TAU * sectors as f64) as usize;
+            let cell = &mut cells[ring.min(rings - 1) * sectors + sector.min(sectors - 1)];
+            *cell = cell.max((z + config.height_offset) as f32);
+        }
+        ScanContext { rings, sectors, max_range: config.max_range, cells }
+    }
+
+    /// Eq. (7): each ring's mean height, invariant to the sensor's yaw.
+    pub fn ring_key(&self) -> [f32; RINGS] {
+        let mut key = [0.0; RINGS];
+        for (k, ring) in key.iter_mut().zip(self.cells.chunks(self.sectors)) {
+            *k = ring.iter().sum::<f32>() / self.sectors as f32;
+        }
+        key
+    }
+
+    /// Each sector's mean height: rolls with the yaw, so it aligns columns cheaply.
+    pub fn sector_key(&self) -> Vec<f32> {
+        (0..self.sectors).map(|s| self.column(s).sum::<f32>() / self.rings as f32).collect()
+    }
+
+    /// Eq. (5): the distance to `other` at the best column shift near the sector-key alignment.
+    pub fn distance(&self, other: &ScanContext, window: usize) -> Match {
+        let no_match = Match { distance: 1.0, shift: 0, yaw: 0.0 };
+        if self.rings != other.rings || self.sectors != other.sectors {
+            return no_match;
+        }
+        let n = self.sectors;
+        let start = key_alignment(&self.sector_key(), &other.sector_key());
+        let window = window.min(n / 2) as isize;
+        (-window..=window)
+            .map(|d| (start as isize + d).rem_euclid(n as isize) as usize)
+            .map(|shift| Match { distance: self.column_distance(other, shift), shift, yaw: shift_yaw(shift, n) })
+            .min_by(|a, b| a.distance.total_cmp(&b.distance))
+            .unwrap_or(no_match)
+    }
+
+    /// Eq. (4) at one shift: one minus the mean cosine similarity of the columns both scans see.
+    fn column_distance(&self, other: &ScanContext, shift: usize) -> f64 {
+        let (mut sum, mut seen) = (0.0, 0usize);
+        for j in 0..self.sectors {
+            let a: Vec<f32> = self.column(j).collect();
+            let b: Vec<f32> = other.column((j + shift) % self.sectors).collect();
+            let (na, nb) = (norm(&a), norm(&b));
+            if na == 0.0 || nb == 0.0 {
+                continue;
+            }
+            let dot: f64 = a.iter().zip(&b).map(|(x, y)| f64::from(*x) * f64::from(*y)).sum();
+            sum += dot / (na * nb);
+            seen += 1;
+        }
+        if seen == 0 { 1.0 } else { 1.0 - sum / seen as f64 }
+    }
+
+    /// The cells of sector `s`, ring by ring.
+    fn column(&self, s: usize) -> impl Iterator<Item = f32> + '_ {
+        self.cells.iter().skip(s).step_by(self.sectors).copied()
+    }
+
+    /// The descriptor on the wire.
+    pub fn to_message(&self) -> proto::ScanContext {
+        proto::ScanContext {
+            rings: self.rings as u32,
+            sectors: self.sectors as u32,
+            max_range: self.max_range as f32,
+            cells: self.cells.clone(),
+        }
+    }
+}
+
+/// Azimuth in [0, 2π), counter-clockwise from +x.
+fn azimuth(x: f64, y: f64) -> f64 {
+    y.atan2(x).rem_euclid(TAU)
+}
+
+/// The roll of `b`'s sector key that best matches `a`'s (least squared difference).
+fn key_alignment(a: &[f32], b: &[f32]) -> usize {
+    let n = a.len();
+    (0..n)
+        .map(|shift| {
+            let d: f32 = (0..n).map(|j| (a[j] - b[(j + shift) % n]).powi(2)).sum();
+            (shift, d)
+        })
+        .min_by(|x, y| x.1.total_cmp(&y.1))
+        .map_or(0, |(shift, _)| shift)
+}
+
+/// The yaw of `b` in `a`'s frame when column `j` of `a` sees what column `j + shift` of `b` sees:
+/// a direction at azimuth α in `a` is at α − yaw in `b`, so `yaw = −shift · 2π / sectors`.
+fn shift_yaw(shift: usize, sectors: usize) -> f64 {
+    let yaw = -(shift as f64) * TAU / sectors as f64;
+    // Into (−π, π].
+    let wrapped = yaw.rem_euclid(TAU);
+    if wrapped > std::f64::consts::PI { wrapped - TAU } else { wrapped }
+}
+
+fn norm(v: &[f32]) -> f64 {
+    v.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Isometry3, Point3, Vector3};
+
+    /// A scene of boxes and walls at irregular places, seen from the origin.
+    fn scene() -> PointCloud {
+        let mut points = Vec::new();
+        let mut rng = testkit::Rng::new(7);
+        for _ in 0..40 {
+            let (cx, cy) = (rng.uniform(-35.0, 35.0), rng.uniform(-35.0, 35.0));
+            let h = rng.uniform(0.5, 6.0);
+            for _ in 0..200 {
+                let (dx, dy, z) = (rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(-1.8, h - 2.0));
+                points.push(Point3::new((cx + dx) as f32, (cy + dy) as f32, z as f32));
+            }
+        }
+        PointCloud::from_points(points)
+    }
+
+    #[test]
+    fn a_turned_scan_matches_at_the_yaw_it_was_turned_by() {
+        let config = ScanContextConfig::default();
+        let world = scene();
+        let a = ScanContext::new(&world, &config);
+        for yaw_deg in [0.0f64, 30.0, -90.0, 174.0, -138.0] {
+            // Scan b is taken by a sensor turned by `yaw` in a's frame: b's points are the world's
+            // seen through the inverse turn.
+            let b_in_a = Isometry3::rotation(Vector3::z() * yaw_deg.to_radians());
+            let b = ScanContext::new(&world.transformed(&b_in_a.inverse().cast()), &config);
+            let m = a.distance(&b, config.shift_window);
+            assert!(m.distance < 0.05, "yaw {yaw_deg}: distance {}", m.distance);
+            let err = (m.yaw - yaw_deg.to_radians() + std::f64::consts::PI).rem_euclid(TAU) - std::f64::consts::PI;
+            // One sector is 6°: the shift is right to a sector.
+            assert!(err.abs().to_degrees() <= 6.0, "yaw {yaw_deg}: found {}", m.yaw.to_degrees());
+            let ring_a = a.ring_key();
+            let ring_b = b.ring_key();
+            let d: f32 = ring_a.iter().zip(&ring_b).map(|(x, y)| (x - y).abs()).sum();
+            assert!(d < 0.5, "ring keys differ by {d} at yaw {yaw_deg}");
+        }
+    }
+
+    #[test]
+    fn another_place_is_far() {
+        let config = ScanContextConfig::default();
+        let world = scene();
+        let a = ScanContext::new(&world, &config);
+        let moved = Isometry3::translation(25.0, -18.0, 0.0);
+        let b = ScanContext::new(&world.transformed(&moved.cast()), &config);
+        let m = a.distance(&b, config.shift_window);
+        assert!(m.distance > 0.2, "distance {}", m.distance);
+    }
+
+    #[test]
+    fn empty_and_mismatched_descriptors_are_far_not_a_panic() {
+        let config = ScanContextConfig::default();
+        let empty = ScanContext::new(&PointCloud::default(), &config);
+        assert_eq!(empty.distance(&empty, 3).distance, 1.0);
+        let other = ScanContext::new(&scene(), &ScanContextConfig { sectors: 30, ..config.clone() });
+        assert_eq!(ScanContext::new(&scene(), &config).distance(&other, 3).distance, 1.0);
+        let nan = PointCloud::from_points(vec![Point3::new(f32::NAN, 0.0, 0.0), Point3::new(1.0, 1.0, f32::INFINITY)]);
+        assert!(ScanContext::new(&nan, &config).cells.iter().all(|c| *c == 0.0));
+    }
+}
