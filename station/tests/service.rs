@@ -383,3 +383,75 @@ fn watch_summaries_name_the_type_and_survive_garbage() {
     assert!(bad.to_json()["malformed"].is_string());
     assert_eq!(client::summarize("some/other/key", b"x").kind, "unknown");
 }
+
+/// The robot's pose graph: keyframes `moved` raised by 1 m, the others at their odometry poses.
+fn raised(robot: u32, seqs: std::ops::Range<u64>, moved: &[u64], revision: u64) -> PoseGraphUpdate {
+    let pose = |seq: u64| {
+        let lift = if moved.contains(&seq) { 1.0 } else { 0.0 };
+        Pose::from(Isometry3::translation(0.0, 0.0, lift) * odom(seq))
+    };
+    PoseGraphUpdate {
+        fleet: fleet().to_string(),
+        robot,
+        revision,
+        poses: seqs.map(|seq| KeyframePose { seq, pose: Some(pose(seq)) }).collect(),
+        loops: vec![],
+    }
+}
+
+/// Points of the published global map above the room's 2.5 m ceiling.
+async fn points_above_the_ceiling(port: u16) -> usize {
+    let (map, _) =
+        client::fetch_global_map(&client_session(port).await, &fleet(), Duration::from_secs(5)).await.unwrap();
+    let cloud = codec::decode(&map.cloud.unwrap().data).unwrap();
+    cloud.points.iter().filter(|p| p.z > 2.6).count()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pose_graph_update_re_places_the_keyframes_in_the_global_map() {
+    let (station_session, robot, port) = sessions().await;
+    let station = Station::start(station_session, config()).await.unwrap();
+    let mut progress = station.progress();
+    let keyframes = publisher(&robot, keyexpr::keyframe(&fleet(), 1)).await;
+    for seq in 0..3 {
+        keyframes.put(keyframe_bytes(1, seq)).await.unwrap();
+    }
+    let before = wait_for(&mut progress, "3 keyframes merged", |p| p.total_keyframes() == 3 && p.up_to_date()).await;
+    assert_eq!(points_above_the_ceiling(port).await, 0, "the keyframes at their odometry poses");
+    // The robot closed a loop: its optimiser raised keyframe 2 by a metre. No cloud is sent again.
+    let poses = publisher(&robot, keyexpr::posegraph(&fleet(), 1)).await;
+    poses.put(raised(1, 0..3, &[2], 1).encode_to_vec()).await.unwrap();
+    let after = wait_for(&mut progress, "the re-merge", |p| {
+        p.pose_revisions.get(&1) == Some(&1) && p.up_to_date() && p.revision > before.revision
+    })
+    .await;
+    assert_eq!(after.total_keyframes(), 3);
+    assert!(points_above_the_ceiling(port).await > 50, "keyframe 2's ceiling is a metre higher");
+    // An older revision arriving late changes nothing.
+    poses.put(raised(1, 0..3, &[], 0).encode_to_vec()).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(station.progress().borrow().revision, after.revision);
+    station.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_station_started_late_asks_a_live_robot_for_its_newest_pose_graph() {
+    let (station_session, robot, port) = sessions().await;
+    let _token = robot.liveliness().declare_token(keyexpr::alive(&fleet(), 4)).await.unwrap();
+    fake_store(&robot, 4, (0..3).collect()).await;
+    let key = keyexpr::posegraph(&fleet(), 4);
+    let queryable = robot.declare_queryable(key.clone()).await.unwrap();
+    tokio::spawn(async move {
+        while let Ok(query) = queryable.recv_async().await {
+            query.reply(key.clone(), raised(4, 0..3, &[1, 2], 7).encode_to_vec()).await.unwrap();
+        }
+    });
+    let station = Station::start(station_session, config()).await.unwrap();
+    let mut progress = station.progress();
+    wait_for(&mut progress, "the keyframes and the pose graph", |p| {
+        p.total_keyframes() == 3 && p.pose_revisions.get(&4) == Some(&7) && p.up_to_date()
+    })
+    .await;
+    assert!(points_above_the_ceiling(port).await > 50);
+    station.stop().await.unwrap();
+}
