@@ -15,7 +15,7 @@ use edge::source::SourceSpec;
 /// Arguments of `emr-edge bench loops`.
 #[derive(clap::Args, Debug)]
 pub struct LoopsArgs {
-    /// Sources to run (repeatable) [default: warehouse-small robot 1, warehouse-large robot 1,
+    /// Sources to run (repeatable) [default: warehouse-small and warehouse-large robots 1-2,
     /// campus robots 1-3, aisles robots 1-2]. Campus sources use the outdoor preset, others indoor.
     #[arg(long = "source")]
     sources: Vec<SourceSpec>,
@@ -28,11 +28,13 @@ pub struct LoopsArgs {
     config: Option<PathBuf>,
 }
 
-/// The default cases: every scenario robot that revisits places, and the aisles (no revisit, rows
-/// that all look alike: any loop found there is false).
-const CASES: [&str; 7] = [
+/// The default cases: every scenario robot, those that revisit places and those that do not (the
+/// aisles' rows all look alike: a loop found there must still be right).
+const CASES: [&str; 9] = [
     "sim:warehouse-small:1",
+    "sim:warehouse-small:2",
     "sim:warehouse-large:1",
+    "sim:warehouse-large:2",
     "sim:campus:1",
     "sim:campus:2",
     "sim:campus:3",
@@ -49,8 +51,8 @@ pub fn loops(args: LoopsArgs) -> Result<()> {
         args.sources
     };
     let mut table = String::from(
-        "| source | scans | path | MR ATE | EMR ATE | loops | false loops | rejected (right after all) | loop ms/keyframe (median, p95) | optimisations (total ms) |\n\
-         |---|---|---|---|---|---|---|---|---|---|\n",
+        "| source | scans | path | MR ATE | EMR ATE | loops | false loops | worst loop error | rejected (right after all) | loop ms/keyframe (median, p95) | optimisations (total ms) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for source in &sources {
         let name = source.to_string();
@@ -82,13 +84,15 @@ pub fn loops(args: LoopsArgs) -> Result<()> {
         let s = track.summary();
         writeln!(
             table,
-            "| {name} | {} | {:.0} m | {} | {} | {} | {} | {} ({}) | {:.1}, {:.1} | {} ({:.0}) |",
+            "| {name} | {} | {:.0} m | {} | {} | {} | {} | {:.1} cm, {:.2} deg | {} ({}) | {:.1}, {:.1} | {} ({:.0}) |",
             pass.len(),
             mr.path_length_m,
             ate(&mr.ate),
             ate(&emr.ate),
             judged.loops,
             judged.false_loops,
+            judged.worst_translation_m * 100.0,
+            judged.worst_rotation_deg,
             s.rejected,
             judged.missed,
             s.detect_ms_median,
