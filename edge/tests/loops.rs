@@ -1,6 +1,7 @@
 //! Loop closure against ground truth: Scan Context and verification on KITTI 08's reverse revisit,
 //! a KITTI 00 scan that is not that street, and whole simulated runs: the warehouse robot that loops
-//! its hall (the loops must lower the ATE) and the aisles' identical rows (no loop may be false).
+//! its hall (the loops must lower the ATE), the aisles' identical rows and a featureless corridor
+//! driven down and back (no loop may be false).
 
 use cloud::PointCloud;
 use cloud::Preset;
@@ -13,7 +14,10 @@ use edge::loops::verify::{self, Verdict};
 use edge::odometry::pipeline;
 use edge::odometry::{Odometry, OdometryConfig};
 use edge::source::SourceSpec;
-use nalgebra::{Isometry3, Matrix4, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix4, Point2, UnitQuaternion, Vector3};
+use sim::trajectory::{Trajectory, TrajectoryConfig};
+use sim::world::Terrain;
+use sim::{Scenario, SimConfig, Simulator};
 use testkit::shared_data;
 
 fn scan(relative: &str) -> PointCloud {
@@ -124,4 +128,37 @@ fn identical_aisles_give_no_false_loop() {
         // than a centimetre.
         assert!(emr <= mr + 0.01, "{robot}: EMR {emr:.3} m against MR {mr:.3} m");
     }
+}
+
+#[test]
+fn down_a_featureless_corridor_and_back_no_loop_is_false() {
+    // Out along the corridor to x = 50 m, a U-turn, and back to the pillars at its closed end: on
+    // the way back every keyframe sees what a keyframe on the way out saw, but away from the end
+    // nothing fixes where along the corridor.
+    let waypoints = [(0.0, -1.0), (48.0, -1.0), (50.0, 0.0), (48.0, 1.0), (0.0, 1.0)].map(|(x, y)| Point2::new(x, y));
+    let config = TrajectoryConfig { stop_at_end: false, ..TrajectoryConfig::default() };
+    let path = Trajectory::new(&waypoints, false, &Terrain::Flat(0.0), &config).unwrap();
+    let scenario = Scenario::new("corridor", "down and back", sim::worlds::corridor::world(), vec![path]);
+    let mut sensor = sim::sensor::SensorModel::vlp16();
+    sensor.max_range = 25.0;
+    let sim = Simulator::new(scenario, 0, SimConfig { sensor, ..SimConfig::default() }).unwrap();
+    let odometry_config = OdometryConfig::indoor();
+    let mut track = LoopTrack::new(odometry_config.loops.clone());
+    let mut odometry = Odometry::new(odometry_config).unwrap();
+    let first = sim.ground_truth(0).inverse();
+    let mut truth = Vec::new();
+    for f in 0..sim.frames() {
+        let scan = sim.scan(f);
+        track.observe(&odometry.register(&scan.cloud, scan.stamp).unwrap()).unwrap();
+        truth.push(first * scan.ground_truth);
+    }
+    let judged = track.judge(&truth);
+    let mut reasons = std::collections::BTreeMap::<String, usize>::new();
+    for r in track.closer().rejected() {
+        *reasons.entry(r.reason.to_string()).or_default() += 1;
+    }
+    println!("corridor: {} scans; {judged:?}; rejected: {reasons:?}", truth.len());
+    assert_eq!(judged.false_loops, 0, "{judged:?}");
+    // The trap was sprung: candidates came up and were refused.
+    assert!(!reasons.is_empty());
 }

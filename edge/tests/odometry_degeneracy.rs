@@ -1,41 +1,16 @@
 //! A featureless corridor: the pose problem loses the axis of the corridor. The odometry must flag
 //! those scans and keep the motion prior along that axis instead of drifting.
 
-use std::sync::Arc;
-
 use cloud::trajectory::ate;
 use edge::odometry::{Odometry, OdometryConfig};
-use nalgebra::{Isometry3, Point2, Point3, Vector3};
-use sim::geometry::{Cuboid, Object, Shape};
+use nalgebra::{Isometry3, Point2};
 use sim::trajectory::{Trajectory, TrajectoryConfig};
-use sim::world::{Terrain, World};
+use sim::world::Terrain;
 use sim::{Scenario, SimConfig, Simulator};
-
-/// A 4 m wide corridor, walls 3 m high running far beyond the sensor's range; a closed end with
-/// pillars behind the start, so the robot gets up to speed with every direction observable.
-fn corridor() -> Arc<World> {
-    let wall = |y: f64| {
-        Object::new(Shape::Cuboid(Cuboid::new(Point3::new(100.0, y, 1.5), Vector3::new(220.0, 0.2, 3.0), 0.0)), 0.6)
-    };
-    let mut objects = vec![wall(-2.1), wall(2.1)];
-    objects.push(Object::new(
-        Shape::Cuboid(Cuboid::new(Point3::new(-4.0, 0.0, 1.5), Vector3::new(0.2, 4.0, 3.0), 0.0)),
-        0.6,
-    ));
-    for (x, y) in [(-2.5, -1.2), (-1.0, 1.3), (1.0, -1.4), (3.0, 1.2)] {
-        objects.push(Object::new(
-            Shape::Cuboid(Cuboid::new(Point3::new(x, y, 0.5), Vector3::new(0.4, 0.4, 1.0), 0.4)),
-            0.5,
-        ));
-    }
-    let terrain = Terrain::Flat(0.0);
-    objects.extend(terrain.render(0.0, 0.0, 1.0, 0.3));
-    Arc::new(World::new(objects, terrain))
-}
 
 /// Runs the odometry down the corridor; returns (truth, estimate, degenerate scans).
 fn run(degeneracy_ratio: f64) -> (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>, usize) {
-    let world = corridor();
+    let world = sim::worlds::corridor::world();
     let config = TrajectoryConfig { stop_at_end: false, ..TrajectoryConfig::default() };
     let path =
         Trajectory::new(&[Point2::new(0.0, 0.0), Point2::new(60.0, 0.0)], false, &Terrain::Flat(0.0), &config).unwrap();

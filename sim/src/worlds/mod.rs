@@ -5,6 +5,7 @@
 
 pub mod aisles;
 pub mod campus;
+pub mod corridor;
 mod rack;
 pub mod warehouse;
 
