@@ -68,12 +68,12 @@ impl KeyframeGraph {
         self.revision
     }
 
-    /// Appends keyframe `odometry.len() - 1`, placed after the previous one by odometry.
-    pub fn extend(&mut self, odometry: &[Isometry3<f64>]) {
-        let n = odometry.len();
-        let pose = match (self.poses.last(), n) {
-            (Some(last), 2..) => last * (odometry[n - 2].inverse() * odometry[n - 1]),
-            _ => odometry[n - 1],
+    /// Appends the next keyframe at odometry pose `odometry`, placed after the previous one (at
+    /// odometry pose `previous`) by the odometry's motion between them.
+    pub fn extend(&mut self, previous: Option<&Isometry3<f64>>, odometry: &Isometry3<f64>) {
+        let pose = match (self.poses.last(), previous) {
+            (Some(last), Some(previous)) => follow(last, previous, odometry),
+            _ => *odometry,
         };
         self.poses.push(pose);
     }
@@ -92,12 +92,16 @@ impl KeyframeGraph {
         self.revision += 1;
         Ok(report)
     }
+}
 
-    /// Where scan pose `odometry_scan` goes when its keyframe `k` (odometry pose `odometry_k`) moved:
-    /// it follows the keyframe rigidly.
-    pub fn follow(&self, k: usize, odometry_k: &Isometry3<f64>, odometry_scan: &Isometry3<f64>) -> Isometry3<f64> {
-        self.poses.get(k).map_or(*odometry_scan, |pose| pose * (odometry_k.inverse() * odometry_scan))
-    }
+/// Where a pose the odometry put at `odometry` goes when the keyframe it follows, at odometry pose
+/// `odometry_keyframe`, was optimised to `keyframe`: it moves rigidly with the keyframe.
+pub fn follow(
+    keyframe: &Isometry3<f64>,
+    odometry_keyframe: &Isometry3<f64>,
+    odometry: &Isometry3<f64>,
+) -> Isometry3<f64> {
+    keyframe * (odometry_keyframe.inverse() * odometry)
 }
 
 /// The pose graph of keyframes at `poses` with odometry poses `odometry` (an edge between each

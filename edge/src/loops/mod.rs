@@ -249,9 +249,8 @@ impl LoopCloser {
         let watch = Stopwatch::start();
         let place = self.describe(keyframe);
         let context = place.context.clone();
+        self.graph.extend(self.places.last().map(|p| &p.odometry), &place.odometry);
         self.places.push(place);
-        let odometry: Vec<Isometry3<f64>> = self.places.iter().map(|p| p.odometry).collect();
-        self.graph.extend(&odometry);
         self.index_aged_places();
         let b = self.places.len() - 1;
         let cooling = self.last_loop.is_some_and(|l| b - l <= self.config.cooldown_keyframes);
@@ -262,8 +261,12 @@ impl LoopCloser {
         }
         let detect_ms = watch.elapsed_ms();
         let changed = found && self.update_loops_in_graph();
-        let optimised =
-            if changed { Some(self.graph.optimise(&odometry, &self.loop_edges(), &self.config.graph)?) } else { None };
+        let optimised = if changed {
+            let odometry = self.odometry();
+            Some(self.graph.optimise(&odometry, &self.loop_edges(), &self.config.graph)?)
+        } else {
+            None
+        };
         Ok(Step { context, optimised, detect_ms })
     }
 
@@ -319,6 +322,7 @@ impl LoopCloser {
                 let candidate = Loop { a, b, descriptor_distance, fit };
                 let margin = consistency::odometry_margin(&self.view(&candidate), &self.config.consistency);
                 tracing::debug!(a, b, margin, "odometry check");
+                // Within the allowance (eq. 1 of `consistency`).
                 if margin <= 1.0 {
                     tracing::debug!(a, b, descriptor_distance, overlap = candidate.fit.overlap, "loop verified");
                     self.verified.push(candidate);
@@ -425,17 +429,21 @@ impl LoopCloser {
     /// The pose of a scan registered at odometry pose `odometry_scan` after keyframe `k`, moved with
     /// that keyframe.
     pub fn follow(&self, k: usize, odometry_scan: &Isometry3<f64>) -> Isometry3<f64> {
-        match self.places.get(k) {
-            Some(place) => self.graph.follow(k, &place.odometry, odometry_scan),
-            None => *odometry_scan,
+        match (self.graph.poses().get(k), self.places.get(k)) {
+            (Some(keyframe), Some(place)) => graph::follow(keyframe, &place.odometry, odometry_scan),
+            _ => *odometry_scan,
         }
     }
 
     /// The keyframe pose graph as optimised (for `graph.g2o`): keyframe poses, odometry edges and
     /// the loops.
     pub fn graph(&self) -> Result<PoseGraph, PoseGraphError> {
-        let odometry: Vec<Isometry3<f64>> = self.places.iter().map(|p| p.odometry).collect();
-        graph::build(self.graph.poses(), &odometry, &self.loop_edges(), &self.config.graph)
+        graph::build(self.graph.poses(), &self.odometry(), &self.loop_edges(), &self.config.graph)
+    }
+
+    /// The keyframes' odometry poses.
+    fn odometry(&self) -> Vec<Isometry3<f64>> {
+        self.places.iter().map(|p| p.odometry).collect()
     }
 
     /// The configuration in use.

@@ -119,14 +119,18 @@ impl ScanContext {
     fn column_distance(&self, other: &ScanContext, shift: usize) -> f64 {
         let (mut sum, mut seen) = (0.0, 0usize);
         for j in 0..self.sectors {
-            let a: Vec<f32> = self.column(j).collect();
-            let b: Vec<f32> = other.column((j + shift) % self.sectors).collect();
-            let (na, nb) = (norm(&a), norm(&b));
-            if na == 0.0 || nb == 0.0 {
+            // One pass over the column pair: its dot product and both squared norms.
+            let (dot, aa, bb) = self.column(j).zip(other.column((j + shift) % self.sectors)).fold(
+                (0.0, 0.0, 0.0),
+                |(dot, aa, bb), (x, y)| {
+                    let (x, y) = (f64::from(x), f64::from(y));
+                    (dot + x * y, aa + x * x, bb + y * y)
+                },
+            );
+            if aa == 0.0 || bb == 0.0 {
                 continue;
             }
-            let dot: f64 = a.iter().zip(&b).map(|(x, y)| f64::from(*x) * f64::from(*y)).sum();
-            sum += dot / (na * nb);
+            sum += dot / (aa.sqrt() * bb.sqrt());
             seen += 1;
         }
         if seen == 0 { 1.0 } else { 1.0 - sum / seen as f64 }
@@ -172,10 +176,6 @@ fn shift_yaw(shift: usize, sectors: usize) -> f64 {
     // Into (−π, π].
     let wrapped = yaw.rem_euclid(TAU);
     if wrapped > std::f64::consts::PI { wrapped - TAU } else { wrapped }
-}
-
-fn norm(v: &[f32]) -> f64 {
-    v.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt()
 }
 
 #[cfg(test)]

@@ -31,7 +31,7 @@ use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 
-use crate::loops::{LoopCloser, LoopError};
+use crate::loops::{self, LoopCloser, LoopError};
 use crate::odometry::{Odometry, OdometryConfig, OdometryError};
 use crate::recording::RecordingOptions;
 use crate::source::{Source, SourceError, SourceSpec};
@@ -157,7 +157,7 @@ impl NodeSummary {
             .iter()
             .zip(&self.keyframe_of_scan)
             .map(|(pose, &k)| match (self.optimised_keyframes.get(k), self.keyframe_poses.get(k)) {
-                (Some(optimised), Some(odometry)) => optimised * (odometry.inverse() * pose),
+                (Some(optimised), Some(odometry)) => loops::graph::follow(optimised, odometry, pose),
                 _ => *pose,
             })
             .collect()
@@ -252,15 +252,7 @@ async fn open_source(config: &NodeConfig) -> Result<Source, NodeError> {
     let opened = tokio::task::spawn_blocking(move || Source::open(&spec, frames, &sim, &recording))
         .await
         .map_err(|e| NodeError::Worker(e.to_string()))?;
-    opened.map_err(|e| NodeError::Source { input: describe(&config.source), source: Box::new(e) })
-}
-
-/// A source as the user wrote it.
-pub fn describe(spec: &SourceSpec) -> String {
-    match spec {
-        SourceSpec::Sim { scenario, robot } => format!("sim:{scenario}:{robot}"),
-        SourceSpec::Recording(path) => path.display().to_string(),
-    }
+    opened.map_err(|e| NodeError::Source { input: config.source.to_string(), source: Box::new(e) })
 }
 
 /// Publishes what the worker registers until it is done, then lingers if asked; on `shutdown`
@@ -412,7 +404,6 @@ impl<'l> Outbox<'l> {
         s.poses.push(scan.pose);
         s.stamps.push(scan.stamp);
         s.ground_truth.push(scan.ground_truth);
-        s.loops = scan.loops;
         if let Some(kf) = scan.keyframe {
             s.keyframe_poses.push(scan.pose);
             self.publish(kf).await?;
@@ -454,11 +445,12 @@ impl<'l> Outbox<'l> {
 
     /// Keeps the update for late askers (first, as keyframes are stored first) and puts it.
     async fn publish_posegraph(&mut self, update: EncodedPoseGraph) -> Result<(), NodeError> {
-        let payload = ZBytes::from(update.payload.clone());
+        let payload = ZBytes::from(update.payload);
         *self.links.latest_posegraph.lock().unwrap_or_else(PoisonError::into_inner) = Some(payload.clone());
         let key = self.links.posegraph.key_expr();
         self.links.posegraph.put(payload).await.map_err(zenoh_error("publish on", key.as_str()))?;
         self.summary.posegraph_revision = update.revision;
+        self.summary.loops = update.loops;
         self.summary.optimised_keyframes = update.poses;
         info!("robot {}: pose graph revision {}, {} loops", self.robot, update.revision, self.summary.loops);
         Ok(())

@@ -32,8 +32,6 @@ pub(crate) struct Registered {
     pub keyframe: Option<EncodedKeyframe>,
     /// The pose graph, when the keyframe's loop re-optimised it.
     pub posegraph: Option<EncodedPoseGraph>,
-    /// Loops in the graph after this scan.
-    pub loops: usize,
 }
 
 /// A `emr.v1.PoseGraphUpdate` protobuf encoding.
@@ -43,6 +41,8 @@ pub(crate) struct EncodedPoseGraph {
     pub revision: u64,
     /// The optimised keyframe poses it holds, by keyframe index.
     pub poses: Vec<Isometry3<f64>>,
+    /// The loops in the graph (they change only when it is optimised).
+    pub loops: usize,
     /// The message bytes.
     pub payload: Vec<u8>,
 }
@@ -118,35 +118,25 @@ impl Worker {
             .map_err(|source| NodeError::Odometry { index: scan.index, source })?;
         let (mut keyframe, mut posegraph) = (None, None);
         if let Some(kf) = &frame.keyframe {
-            let step = match &mut self.loops {
-                Some(loops) => Some(loops.add(kf).map_err(|source| NodeError::Loops { seq: kf.seq, source })?),
-                None => None,
-            };
-            let context = match &step {
-                Some(step) => step.context.clone(),
-                None => ScanContext::new(&kf.cloud, &self.scan_context),
+            let (context, optimised) = match &mut self.loops {
+                Some(loops) => {
+                    let step = loops.add(kf).map_err(|source| NodeError::Loops { seq: kf.seq, source })?;
+                    (step.context, step.optimised.is_some())
+                }
+                None => (ScanContext::new(&kf.cloud, &self.scan_context), false),
             };
             keyframe = Some(self.encode(kf, scan.stamp, &context)?);
-            if step.is_some_and(|s| s.optimised.is_some())
-                && let Some(loops) = &self.loops
-            {
+            if optimised && let Some(loops) = &self.loops {
                 let msg = wire::posegraph_message(&self.fleet, self.robot, loops);
                 posegraph = Some(EncodedPoseGraph {
                     revision: msg.revision,
                     poses: loops.poses().to_vec(),
+                    loops: msg.loops.len(),
                     payload: msg.encode_to_vec(),
                 });
             }
         }
-        let loops = self.loops.as_ref().map_or(0, |l| l.loops().count());
-        Ok(Registered {
-            pose: frame.pose,
-            stamp: scan.stamp,
-            ground_truth: scan.ground_truth,
-            keyframe,
-            posegraph,
-            loops,
-        })
+        Ok(Registered { pose: frame.pose, stamp: scan.stamp, ground_truth: scan.ground_truth, keyframe, posegraph })
     }
 
     fn encode(&self, kf: &Keyframe, stamp: f64, context: &ScanContext) -> Result<EncodedKeyframe, NodeError> {

@@ -576,27 +576,27 @@ impl Core {
     }
 }
 
-/// How often a request for everything that nobody answered is made (see [`fetch`]).
+/// How often a request that nobody answered is made (see [`ask_until_answered`]).
 const FETCH_ATTEMPTS: usize = 5;
 /// The pause before such a request is made again.
 const FETCH_RETRY: Duration = Duration::from_millis(500);
 
-/// One request to a robot's keyframe store; every reply goes to the loop. Returns the number of
-/// replies (keyframes and errors).
+/// One query to a robot (its keyframe store with a `KeyframeRequest` payload, or its pose-graph
+/// key with none); every reply goes to the loop. Returns the number of replies (samples and
+/// errors).
 async fn ask(
     session: &Session,
     key: &str,
     robot: u32,
-    request: &KeyframeRequest,
+    payload: Option<&[u8]>,
     events: &mpsc::UnboundedSender<Event>,
 ) -> usize {
     // No consolidation: every reply is a distinct keyframe, possibly on the same key.
-    let asked = session
-        .get(key)
-        .payload(request.encode_to_vec())
-        .consolidation(ConsolidationMode::None)
-        .timeout(BACKFILL_TIMEOUT)
-        .await;
+    let mut get = session.get(key).consolidation(ConsolidationMode::None).timeout(BACKFILL_TIMEOUT);
+    if let Some(payload) = payload {
+        get = get.payload(payload.to_vec());
+    }
+    let asked = get.await;
     let mut answers = 0;
     match asked {
         Ok(replies) => {
@@ -606,7 +606,7 @@ async fn ask(
                     Ok(sample) => {
                         let _ = events.send(Event::Reply { robot, sample: sample.clone() });
                     }
-                    Err(e) => debug!("robot {robot} keyframe store: {:?}", e.payload().to_bytes()),
+                    Err(e) => debug!("robot {robot} on {key}: {:?}", e.payload().to_bytes()),
                 }
             }
         }
@@ -615,27 +615,30 @@ async fn ask(
     answers
 }
 
-/// Asks a robot for its newest pose graph; the reply goes to the loop. A robot that has none yet
-/// does not answer, which cannot be told from a queryable not declared yet: asked a few times.
-async fn fetch_posegraph(session: Session, key: String, robot: u32, events: mpsc::UnboundedSender<Event>) {
+/// [`ask`], made again a few times a moment later while nobody answers.
+///
+/// A robot's liveliness token and its queryables are declared separately and may reach this
+/// session in either order: a query made on the token alone can find no queryable yet. (A robot
+/// without a pose graph yet does not answer either, which cannot be told apart: it is asked
+/// [`FETCH_ATTEMPTS`] times.)
+async fn ask_until_answered(
+    session: &Session,
+    key: &str,
+    robot: u32,
+    payload: Option<&[u8]>,
+    events: &mpsc::UnboundedSender<Event>,
+) {
     for attempt in 1..=FETCH_ATTEMPTS {
-        let mut answered = false;
-        match session.get(&key).timeout(BACKFILL_TIMEOUT).await {
-            Ok(replies) => {
-                while let Ok(reply) = replies.recv_async().await {
-                    if let Ok(sample) = reply.result() {
-                        answered = true;
-                        let _ = events.send(Event::Reply { robot, sample: sample.clone() });
-                    }
-                }
-            }
-            Err(e) => warn!("cannot query {key}: {e}"),
-        }
-        if answered || attempt == FETCH_ATTEMPTS {
+        if ask(session, key, robot, payload, events).await > 0 || attempt == FETCH_ATTEMPTS {
             break;
         }
         tokio::time::sleep(FETCH_RETRY).await;
     }
+}
+
+/// Asks a robot for its newest pose graph; the reply goes to the loop.
+async fn fetch_posegraph(session: Session, key: String, robot: u32, events: mpsc::UnboundedSender<Event>) {
+    ask_until_answered(&session, &key, robot, None, &events).await;
 }
 
 /// Sleeps until `deadline` (forever when there is none).
@@ -654,11 +657,8 @@ async fn join(job: &mut Option<JoinHandle<JobResult>>) -> Result<JobResult, Join
     }
 }
 
-/// Asks a robot's keyframe store and forwards every reply to the loop.
-///
-/// A robot's liveliness token and its queryable are declared separately and may reach this
-/// session in either order: a request for everything made on the token alone can find no store
-/// yet. Such a request that nobody answered is made again, a few times, a moment later.
+/// Asks a robot's keyframe store and forwards every reply to the loop; a request for everything is
+/// made again while nobody answers (see [`ask_until_answered`]).
 async fn fetch(
     session: Session,
     key: String,
@@ -666,12 +666,11 @@ async fn fetch(
     request: KeyframeRequest,
     events: mpsc::UnboundedSender<Event>,
 ) {
-    for attempt in 1..=FETCH_ATTEMPTS {
-        let answers = ask(&session, &key, robot, &request, &events).await;
-        if answers > 0 || request.from_seq.is_none() || attempt == FETCH_ATTEMPTS {
-            break;
-        }
-        tokio::time::sleep(FETCH_RETRY).await;
+    let payload = request.encode_to_vec();
+    if request.from_seq.is_some() {
+        ask_until_answered(&session, &key, robot, Some(&payload), &events).await;
+    } else {
+        ask(&session, &key, robot, Some(&payload), &events).await;
     }
     let _ = events.send(Event::BackfillDone { robot });
 }

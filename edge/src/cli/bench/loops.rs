@@ -79,8 +79,7 @@ pub fn loops(args: LoopsArgs) -> Result<()> {
         let mr = pipeline::evaluate(&pass.truth, &pass.estimate.poses)?
             .with_context(|| format!("{name}: no ground truth"))?;
         let emr = pipeline::evaluate(&pass.truth, &track.corrected())?.context("ground truth")?;
-        let truth: Vec<_> = mr.truth.poses.clone();
-        let judged = track.judge(&truth);
+        let judged = track.judge(&mr.truth.poses);
         let s = track.summary();
         writeln!(
             table,
