@@ -28,6 +28,28 @@ pub fn binary(name: &str) -> PathBuf {
     path
 }
 
+/// The fleet's router, the real `zenohd` that `deploy/zenohd.sh` builds once and caches (`.ci/run`
+/// runs it first); `EMR_ZENOHD` names another binary.
+pub fn zenohd() -> PathBuf {
+    let path = match std::env::var_os("EMR_ZENOHD") {
+        Some(p) => PathBuf::from(p),
+        None => {
+            let out = Command::new("bash")
+                .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/zenohd.sh"))
+                .env("EMR_ZENOHD_NO_BUILD", "1")
+                .output()
+                .expect("run deploy/zenohd.sh");
+            PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
+        }
+    };
+    assert!(
+        path.is_file(),
+        "no zenohd at {:?}: run `bash deploy/zenohd.sh` once (it builds and caches it), or set EMR_ZENOHD",
+        path
+    );
+    path
+}
+
 /// A child process killed when dropped, with its stderr kept in a file for the failure message.
 pub struct Process {
     /// What it is, for messages.
