@@ -5,7 +5,7 @@ mod cli;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use cli::{bench, files, service};
+use cli::{bench, certs, files, service};
 
 /// The central station of EMR-FLOAM multi-robot LiDAR SLAM.
 ///
@@ -50,6 +50,11 @@ enum Command {
     /// Fetch the latest global map from the fleet's station and write its cloud (.ply, .pcd or
     /// .bin by extension). Without network options, connects to tcp/127.0.0.1:7447.
     Save(service::SaveArgs),
+    /// Make a fleet's certificates for zenoh's mutual TLS (a CA, the router's, the station's, one
+    /// per robot) and the zenoh configurations that use them: the router's with the access control
+    /// that lets robot N publish only under emr/{fleet}/robot/N/**, the station only under
+    /// emr/{fleet}/station/**, and tools (plain TCP) only subscribe and query.
+    Certs(certs::CertsArgs),
     /// Benchmarks.
     #[command(subcommand)]
     Bench(bench::Bench),
@@ -65,6 +70,7 @@ fn main() -> Result<()> {
         Command::Run(args) => service::run(args),
         Command::Watch(args) => service::watch(args),
         Command::Save(args) => service::save(args),
+        Command::Certs(args) => certs::certs(args),
         Command::Bench(which) => bench::run(which),
     }
 }
