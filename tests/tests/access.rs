@@ -56,7 +56,8 @@ impl Router {
 
     /// Opens a client session with `files`' certificate of `member` (or none).
     fn open(&self, member: Option<Member>, files: &CertFiles) -> Result<zenoh::Session, String> {
-        let mut config = zenoh_config::member(member.unwrap_or(Member::Station), std::slice::from_ref(&self.tls), files);
+        let mut config =
+            zenoh_config::member(member.unwrap_or(Member::Station), std::slice::from_ref(&self.tls), files);
         if member.is_none() {
             let tls = config["transport"]["link"]["tls"].as_object_mut().unwrap();
             tls.remove("connect_certificate");

@@ -181,6 +181,7 @@ fn the_compose_fleet_merges_survives_a_killed_station_and_stops_cleanly() {
     }
     let health = wait_health(&fleet);
     assert_eq!(health, "healthy", "the station's health check: {health}\n{}", fleet.logs());
+    the_tls_port_wants_a_fleet_certificate(&fleet, dir.path());
 
     // Hold the robots, let the station finish merging, and remember what it serves.
     fleet.must(&["pause", "edge1", "edge2"]);
@@ -213,6 +214,44 @@ fn the_compose_fleet_merges_survives_a_killed_station_and_stops_cleanly() {
     for service in ["station", "edge1", "edge2"] {
         assert_eq!(fleet.inspect(service, "{{.State.ExitCode}}"), "0", "{service} did not exit cleanly on SIGTERM");
     }
+}
+
+/// 127.0.0.1:7448 from the host: refused without a certificate, open to the station's (copied out
+/// of the fleet volume).
+fn the_tls_port_wants_a_fleet_certificate(fleet: &Fleet, dir: &Path) {
+    let certs = fleet.must(&["ps", "-a", "-q", "certs"]).trim().to_owned();
+    for file in ["ca.pem", "station.pem", "station.key"] {
+        let from = format!("{certs}:/etc/emr/fleet/{file}");
+        let out = Command::new("docker").args(["cp", &from]).arg(dir.join(file)).output().expect("docker cp");
+        assert!(out.status.success(), "docker cp {from}: {}", text(&out));
+    }
+    let tls = |with_certificate: bool| {
+        let mut link =
+            serde_json::json!({ "root_ca_certificate": dir.join("ca.pem"), "enable_mtls": with_certificate });
+        if with_certificate {
+            link["connect_certificate"] = dir.join("station.pem").display().to_string().into();
+            link["connect_private_key"] = dir.join("station.key").display().to_string().into();
+        }
+        let config = serde_json::json!({
+            "mode": "client",
+            "connect": { "endpoints": ["tls/127.0.0.1:7448"] },
+            "scouting": { "multicast": { "enabled": false }, "gossip": { "enabled": false } },
+            "transport": { "link": { "tls": link } },
+        });
+        let path = dir.join(format!("tls-{with_certificate}.json5"));
+        std::fs::write(&path, config.to_string()).unwrap();
+        Command::new(binary("emr-station"))
+            .args(["save", "--fleet", "demo", "--timeout-s", "5", "--out"])
+            .arg(dir.join("tls.ply"))
+            .arg("--zenoh")
+            .arg(&path)
+            .output()
+            .expect("run emr-station save")
+    };
+    let refused = tls(false);
+    assert!(!refused.status.success(), "127.0.0.1:7448 let in a client without a certificate");
+    let admitted = tls(true);
+    assert!(admitted.status.success(), "the station's certificate on 127.0.0.1:7448: {}", text(&admitted));
 }
 
 /// The station's health once docker has run its check at least once.
