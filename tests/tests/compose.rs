@@ -126,6 +126,11 @@ impl Saved {
         robots.iter().filter(|r| r["status"] == "merged").filter_map(|r| r["robot"].as_u64()).collect()
     }
 
+    fn keyframes_of(&self, robot: u64) -> Option<u64> {
+        let robots = self.placements["robots"].as_array()?;
+        robots.iter().find(|r| r["robot"].as_u64() == Some(robot))?["keyframes"].as_u64()
+    }
+
     fn keyframes(&self) -> u64 {
         let robots = self.placements["robots"].as_array().cloned().unwrap_or_default();
         robots.iter().filter_map(|r| r["keyframes"].as_u64()).sum()
@@ -205,15 +210,42 @@ fn the_compose_fleet_merges_survives_a_killed_station_and_stops_cleanly() {
     });
     println!("robots went on: revision {}, {} keyframes", later.revision(), later.keyframes());
 
-    // SIGTERM reaches every process: `docker stop` returns well before its 20 s kill timeout.
+    // SIGTERM reaches every process: `docker stop` returns well before its 20 s kill timeout. The
+    // robots first: each says what it made as it exits, and the station must hold all of it (the
+    // pause outlived their zenoh leases, the station was killed: what it missed, it fetched).
+    let stopping = Instant::now();
+    fleet.must(&["stop", "--timeout", "20", "edge1", "edge2"]);
+    let robots_took = stopping.elapsed();
+    let made: Vec<(u64, u64)> = [1, 2].iter().map(|&r| (r, keyframes_made(&fleet, r))).collect();
+    let all = wait(&fleet, dir.path(), Duration::from_secs(120), "every keyframe the robots made", |s| {
+        made.iter().all(|&(r, n)| s.keyframes_of(r) == Some(n))
+    });
+    println!("robots made {made:?} keyframes, the station holds them all at revision {}", all.revision());
     let stopping = Instant::now();
     fleet.must(&["stop", "--timeout", "20"]);
-    let took = stopping.elapsed();
-    println!("stopped in {:.1} s", took.as_secs_f64());
-    assert!(took < Duration::from_secs(15), "docker stop took {took:?}: a process ignores SIGTERM");
+    let rest_took = stopping.elapsed();
+    println!(
+        "robots stopped in {:.1} s, station and router in {:.1} s",
+        robots_took.as_secs_f64(),
+        rest_took.as_secs_f64()
+    );
+    for took in [robots_took, rest_took] {
+        assert!(took < Duration::from_secs(15), "docker stop took {took:?}: a process ignores SIGTERM");
+    }
     for service in ["station", "edge1", "edge2"] {
         assert_eq!(fleet.inspect(service, "{{.State.ExitCode}}"), "0", "{service} did not exit cleanly on SIGTERM");
     }
+}
+
+/// The keyframes robot `r` says it made, from the line it logs as it exits.
+fn keyframes_made(fleet: &Fleet, r: u64) -> u64 {
+    let logs = fleet.must(&["logs", "--no-color", &format!("edge{r}")]);
+    let prefix = format!("robot {r}: ");
+    let line = logs.lines().rev().find_map(|l| l.split_once(&prefix).map(|(_, rest)| rest.to_owned()));
+    let line = line.unwrap_or_else(|| panic!("edge{r} did not log its counts as it stopped\n{logs}"));
+    // "{frames} scans, {keyframes} keyframes, ..."
+    let count = line.split(", ").nth(1).and_then(|p| p.strip_suffix(" keyframes")).and_then(|n| n.parse().ok());
+    count.unwrap_or_else(|| panic!("edge{r}'s last line: {line}"))
 }
 
 /// 127.0.0.1:7448 from the host: refused without a certificate, open to the station's (copied out
