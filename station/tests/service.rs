@@ -247,10 +247,51 @@ fn backfill_keeps_one_request_per_robot_and_does_not_repeat_itself() {
     assert_eq!(sent, vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: None })]);
     b.want(1, Want::Gaps);
     assert!(b.requests(&s, now).is_empty(), "one outstanding request per robot");
-    b.done(1);
+    b.done(1, true, now);
     assert!(b.requests(&s, now).is_empty(), "the same gaps again so soon");
     b.want(1, Want::Everything);
     assert_eq!(b.requests(&s, now), vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: Some(4) })]);
+}
+
+#[test]
+fn a_request_that_timed_out_is_made_again_for_what_is_still_missing() {
+    let mut s = FleetState::default();
+    for seq in [0, 3] {
+        s.insert_keyframe(received(1, seq));
+    }
+    let t0 = Instant::now();
+    let retry = Duration::from_secs(2);
+    let mut b = Backfill::new(retry);
+    b.want(1, Want::Everything);
+    assert_eq!(b.requests(&s, t0), vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: Some(4) })]);
+    // Part of it came before the timeout.
+    s.insert_keyframe(received(1, 1));
+    s.insert_keyframe(received(1, 4));
+    b.done(1, false, t0);
+    assert!(b.requests(&s, t0 + retry / 2).is_empty(), "asked again before the retry delay");
+    assert_eq!(b.requests(&s, t0 + retry), vec![(1, KeyframeRequest { seqs: vec![2], from_seq: Some(5) })]);
+    b.done(1, true, t0 + retry);
+    assert!(b.requests(&s, t0 + retry * 10).is_empty(), "a completed request is not repeated");
+}
+
+#[test]
+fn gaps_that_nothing_new_reveals_are_asked_for_again() {
+    let mut s = FleetState::default();
+    for seq in [0, 2] {
+        s.insert_keyframe(received(1, seq));
+    }
+    s.insert_keyframe(received(2, 0));
+    let t0 = Instant::now();
+    let retry = Duration::from_secs(2);
+    let mut b = Backfill::new(retry);
+    b.want(1, Want::Gaps);
+    assert_eq!(b.requests(&s, t0).len(), 1);
+    b.done(1, true, t0);
+    b.recheck(&s);
+    assert!(b.requests(&s, t0 + retry / 2).is_empty(), "the same gaps before the retry delay");
+    b.recheck(&s);
+    let again = b.requests(&s, t0 + retry);
+    assert_eq!(again, vec![(1, KeyframeRequest { seqs: vec![1], from_seq: None })], "robot 2 has no gap");
 }
 
 // ---------------------------------------------------------------- stations on loopback

@@ -3,6 +3,10 @@
 //! One request per robot is outstanding at a time, so a burst of gaps cannot spawn a query storm;
 //! wants that arrive meanwhile are kept and served when it completes. A robot that no longer holds
 //! a missing keyframe is not asked for the same gaps again before `retry` has passed.
+//!
+//! A request that did not complete (it timed out on a slow or lossy link: whatever arrived is
+//! kept) is made again, for what is still missing, once `retry` has passed; and gaps that nothing
+//! new will reveal (the robot's source has ended) are asked for again by [`Backfill::recheck`].
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
@@ -31,12 +35,20 @@ pub struct Backfill {
     wanted: BTreeMap<u32, Want>,
     /// The gaps last asked for per robot, and when.
     last_gaps: BTreeMap<u32, (Vec<u64>, Instant)>,
+    /// Robots whose last request did not complete, and when to ask them again.
+    again_at: BTreeMap<u32, Instant>,
 }
 
 impl Backfill {
     /// A planner that repeats a request for the same gaps at most every `retry`.
     pub fn new(retry: Duration) -> Self {
-        Self { retry, in_flight: BTreeSet::new(), wanted: BTreeMap::new(), last_gaps: BTreeMap::new() }
+        Self {
+            retry,
+            in_flight: BTreeSet::new(),
+            wanted: BTreeMap::new(),
+            last_gaps: BTreeMap::new(),
+            again_at: BTreeMap::new(),
+        }
     }
 
     /// Notes that keyframes are wanted from `robot`.
@@ -47,6 +59,11 @@ impl Backfill {
 
     /// The requests to send now: one per robot with a want and no request outstanding.
     pub fn requests(&mut self, state: &FleetState, now: Instant) -> Vec<(u32, KeyframeRequest)> {
+        let due: Vec<u32> = self.again_at.iter().filter(|(_, at)| **at <= now).map(|(&r, _)| r).collect();
+        for robot in due {
+            self.again_at.remove(&robot);
+            self.want(robot, Want::Everything);
+        }
         let ready: Vec<(u32, Want)> =
             self.wanted.iter().filter(|(r, _)| !self.in_flight.contains(r)).map(|(&r, &w)| (r, w)).collect();
         let mut out = Vec::new();
@@ -77,9 +94,23 @@ impl Backfill {
         Some(KeyframeRequest { seqs, from_seq })
     }
 
-    /// The request to `robot` has completed (all replies in, or timed out).
-    pub fn done(&mut self, robot: u32) {
+    /// The request to `robot` has ended: `complete` when every reply came in, not when it timed
+    /// out (then it is made again `retry` after `now`).
+    pub fn done(&mut self, robot: u32, complete: bool, now: Instant) {
         self.in_flight.remove(&robot);
+        if !complete {
+            self.again_at.insert(robot, now + self.retry);
+        }
+    }
+
+    /// Wants the gaps of every robot that has some: called periodically, so that gaps no new
+    /// keyframe reveals are still asked for (each set of gaps at most every `retry`).
+    pub fn recheck(&mut self, state: &FleetState) {
+        for &robot in state.robots().keys() {
+            if !state.missing(robot).is_empty() {
+                self.want(robot, Want::Gaps);
+            }
+        }
     }
 
     /// Requests outstanding.

@@ -27,8 +27,11 @@ use super::store::{self, Persisted, Store, Write};
 use super::{StationConfig, StationError, StationProgress, StationSummary};
 use crate::merge::{MergeConfig, MergeError};
 
-/// How long a backfill request waits for the robot's replies.
-const BACKFILL_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long a backfill request waits for the robot's replies: a request that times out is made again
+/// for what is still missing, but the replies of an expired query still cross the link (the robot
+/// cannot know), so a short timeout on a slow link would pile stale replies in front of the new
+/// ones. 30 s carries about 2 MB (30 keyframes) over a link left with 67 kB/s by 20 % loss.
+const BACKFILL_TIMEOUT: Duration = Duration::from_secs(30);
 
 /// How soon the same gaps may be asked for again.
 const BACKFILL_RETRY: Duration = Duration::from_secs(2);
@@ -212,7 +215,7 @@ enum Event {
     /// A reply to a backfill request to `robot`: a keyframe, or the robot's newest pose graph.
     Reply { robot: u32, sample: Sample },
     /// The backfill request to `robot` has completed.
-    BackfillDone { robot: u32 },
+    BackfillDone { robot: u32, complete: bool },
 }
 
 /// Where a keyframe came from.
@@ -319,7 +322,10 @@ impl Core {
                 Ok(sample) = endpoints.alive.recv_async() => self.on_liveliness(&sample),
                 Ok(query) = endpoints.queries.recv_async() => self.answer(&query).await,
                 Some(event) = events.recv() => self.on_event(event),
-                _ = status.tick() => self.publish_status(&endpoints.status).await,
+                _ = status.tick() => {
+                    self.backfill.recheck(&self.state);
+                    self.publish_status(&endpoints.status).await;
+                }
                 () = sleep_until(deadline), if deadline.is_some() => job = self.start_merge(),
                 joined = join(&mut job), if job.is_some() => {
                     job = None;
@@ -418,7 +424,7 @@ impl Core {
                     _ => self.on_keyframe(robot, key, &bytes, Origin::Backfill),
                 }
             }
-            Event::BackfillDone { robot } => self.backfill.done(robot),
+            Event::BackfillDone { robot, complete } => self.backfill.done(robot, complete, Instant::now()),
         }
     }
 
@@ -581,38 +587,52 @@ const FETCH_ATTEMPTS: usize = 5;
 /// The pause before such a request is made again.
 const FETCH_RETRY: Duration = Duration::from_millis(500);
 
+/// What one query brought.
+#[derive(Clone, Copy, Debug, Default)]
+struct Asked {
+    /// Replies, samples and errors.
+    answers: usize,
+    /// An error reply came: the query timed out (zenoh's own reply then) or the robot refused it.
+    failed: bool,
+}
+
 /// One query to a robot (its keyframe store with a `KeyframeRequest` payload, or its pose-graph
-/// key with none); every reply goes to the loop. Returns the number of replies (samples and
-/// errors).
+/// key with none); every reply goes to the loop.
 async fn ask(
     session: &Session,
     key: &str,
     robot: u32,
     payload: Option<&[u8]>,
     events: &mpsc::UnboundedSender<Event>,
-) -> usize {
+) -> Asked {
     // No consolidation: every reply is a distinct keyframe, possibly on the same key.
     let mut get = session.get(key).consolidation(ConsolidationMode::None).timeout(BACKFILL_TIMEOUT);
     if let Some(payload) = payload {
         get = get.payload(payload.to_vec());
     }
     let asked = get.await;
-    let mut answers = 0;
+    let mut out = Asked::default();
     match asked {
         Ok(replies) => {
             while let Ok(reply) = replies.recv_async().await {
-                answers += 1;
+                out.answers += 1;
                 match reply.result() {
                     Ok(sample) => {
                         let _ = events.send(Event::Reply { robot, sample: sample.clone() });
                     }
-                    Err(e) => debug!("robot {robot} on {key}: {:?}", e.payload().to_bytes()),
+                    Err(e) => {
+                        out.failed = true;
+                        debug!("robot {robot} on {key}: {:?}", e.payload().to_bytes());
+                    }
                 }
             }
         }
-        Err(e) => warn!("cannot query {key}: {e}"),
+        Err(e) => {
+            out.failed = true;
+            warn!("cannot query {key}: {e}");
+        }
     }
-    answers
+    out
 }
 
 /// [`ask`], made again a few times a moment later while nobody answers.
@@ -627,13 +647,16 @@ async fn ask_until_answered(
     robot: u32,
     payload: Option<&[u8]>,
     events: &mpsc::UnboundedSender<Event>,
-) {
+) -> Asked {
+    let mut asked = Asked::default();
     for attempt in 1..=FETCH_ATTEMPTS {
-        if ask(session, key, robot, payload, events).await > 0 || attempt == FETCH_ATTEMPTS {
+        asked = ask(session, key, robot, payload, events).await;
+        if asked.answers > 0 || attempt == FETCH_ATTEMPTS {
             break;
         }
         tokio::time::sleep(FETCH_RETRY).await;
     }
+    asked
 }
 
 /// Asks a robot for its newest pose graph; the reply goes to the loop.
@@ -667,10 +690,10 @@ async fn fetch(
     events: mpsc::UnboundedSender<Event>,
 ) {
     let payload = request.encode_to_vec();
-    if request.from_seq.is_some() {
-        ask_until_answered(&session, &key, robot, Some(&payload), &events).await;
+    let asked = if request.from_seq.is_some() {
+        ask_until_answered(&session, &key, robot, Some(&payload), &events).await
     } else {
-        ask(&session, &key, robot, Some(&payload), &events).await;
-    }
-    let _ = events.send(Event::BackfillDone { robot });
+        ask(&session, &key, robot, Some(&payload), &events).await
+    };
+    let _ = events.send(Event::BackfillDone { robot, complete: !asked.failed });
 }
