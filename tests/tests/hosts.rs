@@ -4,7 +4,7 @@
 //! sensor speed, and the station must come to hold every keyframe the robots made (their own
 //! counts, from `--summary`): robot 3's once its link is back, robot 2's once it is done (after
 //! faults 2-4), everyone's at the end; between the router's and the station's restart, at least
-//! what robots 1 and 2 had made by their next progress line.
+//! what robot 1 had made by its next progress line.
 //!
 //! 1. robot 3's link is cut at the bridge for 30 s while it keeps mapping (its source ends during
 //!    the cut); measured: the time from putting the link back until the station's global map holds
@@ -67,7 +67,7 @@ enum Source {
 }
 
 const ROBOTS: [Robot; 3] = [
-    Robot { id: 1, frames: 900, source: Source::Sim("warehouse-large", 1) },
+    Robot { id: 1, frames: 1000, source: Source::Sim("warehouse-large", 1) },
     Robot { id: 2, frames: 700, source: Source::Sim("warehouse-large", 2) },
     Robot { id: 3, frames: 350, source: Source::Recorded("warehouse-small", 2) },
 ];
@@ -534,12 +534,16 @@ fn robots_on_their_own_hosts_lose_no_keyframe_to_cut_lossy_or_restarted_links() 
     std::thread::sleep(Duration::from_secs(2));
     site.router = start_router(&site.hosts, dir);
     println!("{:.1} s: router restarted", t0.elapsed().as_secs_f64());
-    // Through the new router the station hears robots 1 and 2 again: it comes to hold at least the
-    // keyframes each had made by its first progress line after the restart (the exact counts are
-    // checked once they are done: these robots are still mapping).
-    let made: Vec<(u32, u64)> = [1, 2].iter().map(|&r| (r, site.next_progress(r).1)).collect();
-    let map = site.wait_map(|m| made.iter().all(|&(r, k)| hosts::keyframes_of(m, r) >= k));
-    println!("{:.1} s: after the router's restart, made {made:?}, held {}", t0.elapsed().as_secs_f64(), describe(&map));
+    // Through the new router the station hears robot 1 (whose link is clean) again: it comes to
+    // hold at least the keyframes robot 1 had made by its first progress line after the restart
+    // (the exact counts are checked once the robots are done: they are still mapping).
+    let made = site.next_progress(1).1;
+    let map = site.wait_map(|m| hosts::keyframes_of(m, 1) >= made);
+    println!(
+        "{:.1} s: after the router's restart robot 1 had made {made} keyframes; held: {}",
+        t0.elapsed().as_secs_f64(),
+        describe(&map)
+    );
 
     // Fault 4: the station's host restarted while robots 1 and 2 map.
     assert!(!site.summary_written(1), "robot 1 finished before the station's restart");
