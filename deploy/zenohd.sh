@@ -8,7 +8,7 @@ version=$(awk '/^name = "zenoh"$/ { getline; gsub(/[^0-9.]/, ""); print; exit }'
 root="${EMR_CACHE:-$HOME/.cache/emr-floam}/zenohd-$version"
 # EMR_ZENOHD_NO_BUILD=1: only say where it would be (the tests' locator).
 if [ ! -x "$root/bin/zenohd" ] && [ -z "${EMR_ZENOHD_NO_BUILD:-}" ]; then
-    echo "building zenohd $version into $root (once; ~10 min on 2 cores)" >&2
+    echo "building zenohd $version into $root (once; 4.5 min on 2 cores)" >&2
     cargo install zenohd --version "=$version" --locked --root "$root" --quiet >&2
 fi
 echo "$root/bin/zenohd"

@@ -258,15 +258,6 @@ mod tests {
         assert!(err.to_string().contains("/nonexistent/zenoh.json5"), "{err}");
     }
 
-    #[test]
-    fn the_deployment_configs_parse() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/zenoh");
-        for name in ["router.json5", "client.json5"] {
-            let config = Network::File(dir.join(name)).config();
-            assert!(config.is_ok(), "{name}: {:?}", config.err());
-        }
-    }
-
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn two_loopback_peers_talk() {
         let port = free_port().unwrap();
