@@ -281,14 +281,16 @@ pub fn placement(map: &GlobalMap, robot: u32) -> Isometry3<f64> {
     Isometry3::try_from(r.transform.as_ref().expect("placement transform")).expect("valid transform")
 }
 
-/// The true placement of `robot`'s odometry frame in `reference`'s: both frames are the sensor at
-/// the end of the robot's first sweep, whose world pose the simulator knows exactly.
+/// The sensor's world pose at the end of simulated `robot`'s first sweep in `scenario`: the origin
+/// of that robot's odometry frame, which the simulator knows exactly.
+pub fn first_sweep_pose(scenario: &str, robot: u32) -> Isometry3<f64> {
+    let scenario = Scenario::by_name(scenario).expect("scenario");
+    Simulator::new(scenario, robot as usize - 1, SimConfig::default()).expect("simulator").ground_truth(0)
+}
+
+/// The true placement of `robot`'s odometry frame in `reference`'s (both of `scenario`).
 pub fn true_placement(scenario: &str, reference: u32, robot: u32) -> Isometry3<f64> {
-    let first = |r: u32| {
-        let scenario = Scenario::by_name(scenario).expect("scenario");
-        Simulator::new(scenario, r as usize - 1, SimConfig::default()).expect("simulator").ground_truth(0)
-    };
-    first(reference).inverse() * first(robot)
+    first_sweep_pose(scenario, reference).inverse() * first_sweep_pose(scenario, robot)
 }
 
 /// Translation (m) and rotation (deg) between two transforms.

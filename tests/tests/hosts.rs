@@ -35,7 +35,6 @@ use std::time::{Duration, Instant};
 use edge::loops::scan_context::RINGS;
 use nalgebra::Isometry3;
 use proto::GlobalMap;
-use sim::{Scenario, SimConfig, Simulator};
 use tests::hosts::{self, Hosts};
 use tests::*;
 
@@ -194,18 +193,12 @@ fn reference_run(dir: &Path) -> (Vec<(u32, u64)>, GlobalMap) {
     (keyframes, map)
 }
 
-/// The sensor's world pose at the end of a robot's first sweep: its odometry frame.
-fn first_pose(scenario: &str, robot: u32) -> Isometry3<f64> {
-    let scenario = Scenario::by_name(scenario).expect("scenario");
-    Simulator::new(scenario, robot as usize - 1, SimConfig::default()).expect("simulator").ground_truth(0)
-}
-
 /// The true placement of `robot`'s odometry frame in `reference`'s.
 fn truth(reference: u32, robot: u32) -> Isometry3<f64> {
     let pose = |id: u32| {
         let r = ROBOTS.iter().find(|r| r.id == id).expect("a robot of the test");
         match r.source {
-            Source::Sim(s, n) | Source::Recorded(s, n) => first_pose(s, n),
+            Source::Sim(s, n) | Source::Recorded(s, n) => first_sweep_pose(s, n),
         }
     };
     pose(reference).inverse() * pose(robot)

@@ -106,8 +106,8 @@ impl Backfill {
     /// Wants the gaps of every robot that has some: called periodically, so that gaps no new
     /// keyframe reveals are still asked for (each set of gaps at most every `retry`).
     pub fn recheck(&mut self, state: &FleetState) {
-        for &robot in state.robots().keys() {
-            if !state.missing(robot).is_empty() {
+        for (&robot, held) in state.robots() {
+            if held.missing_count() > 0 {
                 self.want(robot, Want::Gaps);
             }
         }

@@ -363,7 +363,7 @@ impl Core {
                 self.queue.changed(Instant::now());
                 if origin == Origin::Backfill {
                     self.counters.backfilled += 1;
-                } else if !self.state.missing(robot).is_empty() {
+                } else if self.state.robot(robot).is_some_and(|r| r.missing_count() > 0) {
                     self.backfill.want(robot, Want::Gaps);
                 }
             }
