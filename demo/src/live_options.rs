@@ -39,7 +39,7 @@ impl LiveArgs {
         let sinks = self.sinks(out);
         let live = Live::open(&sinks, "emr-demo")
             .await
-            .context("the live view (--foxglove ADDR for another address, --no-foxglove for none; --no-record)")?;
+            .context("the live view (--foxglove ADDR serves it elsewhere, --no-foxglove not at all)")?;
         if let Some(addr) = live.as_ref().and_then(|l| l.address()) {
             println!("Foxglove: ws://{addr}");
         }

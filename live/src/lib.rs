@@ -35,7 +35,7 @@ impl<T: Write + Seek + Send + 'static> RecordTarget for T {}
 #[derive(Debug, thiserror::Error)]
 pub enum LiveError {
     /// The WebSocket server could not listen on the address (busy port, address not on this host).
-    #[error("cannot serve the Foxglove live view on {addr}: {source}")]
+    #[error("cannot serve the Foxglove live view on {addr}")]
     Serve {
         /// The address asked for.
         addr: SocketAddr,
@@ -43,13 +43,13 @@ pub enum LiveError {
         source: foxglove::FoxgloveError,
     },
     /// The MCAP recording could not be started or finished.
-    #[error("MCAP recording: {0}")]
+    #[error("the MCAP recording failed")]
     Record(#[source] foxglove::FoxgloveError),
     /// The recording's last bytes could not be written.
-    #[error("MCAP recording: {0}")]
+    #[error("cannot write the end of the MCAP recording")]
     Flush(#[source] std::io::Error),
     /// The recording's file could not be created.
-    #[error("cannot create the recording {}: {source}", path.display())]
+    #[error("cannot create the recording {}", path.display())]
     Create {
         /// The file.
         path: std::path::PathBuf,
