@@ -1,6 +1,8 @@
 //! `emr-demo`: the robots and the station of EMR-FLOAM in one process. Thin: parses arguments, sets
 //! up logging and calls the library.
 
+mod live_options;
+
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
@@ -51,6 +53,8 @@ struct RunArgs {
     /// Output directory.
     #[arg(long, default_value = "out/demo")]
     out: PathBuf,
+    #[command(flatten)]
+    live: live_options::LiveArgs,
 }
 
 #[derive(Subcommand, Debug)]
@@ -91,8 +95,8 @@ fn main() -> Result<()> {
 }
 
 fn run_demo(args: RunArgs) -> Result<()> {
-    let RunArgs { scenario, robots, frames, realtime, out } = args;
-    let config = DemoConfig {
+    let RunArgs { scenario, robots, frames, realtime, out, live } = args;
+    let mut config = DemoConfig {
         scenario,
         robots,
         frames,
@@ -101,8 +105,14 @@ fn run_demo(args: RunArgs) -> Result<()> {
         ..DemoConfig::new()
     };
     let report = runtime()?.block_on(async {
+        let live = live.open(&config.out).await?;
+        config.station.live = live.clone();
         let interrupt = bus::shutdown_signal().context("cannot handle SIGINT/SIGTERM")?;
-        demo::run(config, interrupt).await.map_err(anyhow::Error::from)
+        let report = demo::run(config, interrupt).await;
+        if let Some(live) = live {
+            live.finish().await?;
+        }
+        report.map_err(anyhow::Error::from)
     })?;
     print_demo(&report);
     Ok(())

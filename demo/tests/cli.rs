@@ -26,3 +26,16 @@ fn bench_load_keeps_its_flags() {
         assert!(help.contains(flag), "lacks {flag}:\n{help}");
     }
 }
+
+#[test]
+fn a_busy_foxglove_port_is_an_error_naming_it() {
+    let busy = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = busy.local_addr().unwrap().to_string();
+    let out = tempfile::tempdir().unwrap();
+    let args = ["--frames", "1", "--no-record", "--foxglove", &addr, "--out", out.path().to_str().unwrap()];
+    let run = Command::new(env!("CARGO_BIN_EXE_emr-demo")).args(args).output().unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(stderr.contains(&format!("cannot serve the Foxglove live view on {addr}")), "{stderr}");
+    assert!(stderr.contains("--no-foxglove"), "{stderr}");
+}

@@ -1,6 +1,7 @@
 //! The robot side of EMR-FLOAM: scan sources (simulator and recordings), odometry, keyframes, loop
 //! closure and the keyframe pose graph.
 
+pub mod live_view;
 pub mod loops;
 pub mod memory;
 pub mod node;

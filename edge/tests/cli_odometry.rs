@@ -164,3 +164,34 @@ fn loop_closure_files_are_written_by_default_and_not_with_no_loops() {
         serde_json::from_str::<serde_json::Value>(&read(without.join("stats.json"))).unwrap().get("loops").is_none()
     );
 }
+
+#[test]
+fn odometry_records_the_run_for_foxglove() {
+    let dir = tempfile::tempdir().unwrap();
+    let (out, mcap_path) = (dir.path().join("run"), dir.path().join("run.mcap"));
+    let (out_s, mcap_s) = (out.to_str().unwrap(), mcap_path.to_str().unwrap());
+    let args = ["odometry", "sim:warehouse-small:1", "--out", out_s, "--max-frames", "40", "--record", mcap_s];
+    let run = emr_edge(&[&args[..], &["--robot", "2"]].concat());
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
+    let bytes = std::fs::read(&mcap_path).unwrap();
+    let mut counts = std::collections::BTreeMap::<String, (u64, String)>::new();
+    for message in mcap::MessageStream::new(&bytes).expect("an MCAP file") {
+        let channel = message.expect("a readable message").channel;
+        let schema = channel.schema.as_ref().map_or(channel.message_encoding.clone(), |s| s.name.clone());
+        counts.entry(channel.topic.clone()).or_insert((0, schema)).0 += 1;
+    }
+    let count = |topic: &str, schema: &str| {
+        let (n, s) = counts.get(topic).unwrap_or_else(|| panic!("no {topic} in {counts:?}"));
+        assert_eq!(s, schema, "{topic}");
+        *n
+    };
+    assert_eq!(count("/tf", "foxglove.FrameTransforms"), stats["frames"].as_u64().unwrap(), "a frame per scan");
+    let keyframes = stats["keyframes"].as_u64().unwrap();
+    assert!(keyframes >= 2);
+    assert_eq!(count("/robot2/keyframe", "foxglove.PointCloud"), keyframes, "every keyframe");
+    assert_eq!(count("/robot2/status", "json"), keyframes, "a status per keyframe");
+    assert!(count("/robot2/trajectory", "foxglove.PosesInFrame") >= 1);
+    assert!(count("/robot2/loops", "foxglove.SceneUpdate") >= 1);
+}

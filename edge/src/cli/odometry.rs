@@ -1,9 +1,12 @@
 //! `emr-edge odometry`: the library's odometry pipeline with a progress bar.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use anyhow::Result;
+use edge::live_view::EdgeView;
 use edge::odometry::pipeline::{OdometryPipeline, Tuning};
+use live::Live;
 
 use super::{SourceArgs, TuningArgs, progress_bar};
 
@@ -31,6 +34,14 @@ pub struct OdometryArgs {
     /// Odometry only (the paper's MR mode): poses_kitti.txt is the odometry.
     #[arg(long, overrides_with = "loops")]
     no_loops: bool,
+    /// Record the run to this MCAP file for Foxglove: per scan the sensor frame (/tf), per
+    /// keyframe its cloud, the trajectory, the loops and a status (topics in the README), stamped
+    /// with the scans' times.
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
+    /// Robot id the recording's topics and frames are named after (/robotN/..., robotN).
+    #[arg(long, default_value_t = 1, requires = "record")]
+    robot: u32,
 }
 
 /// `emr-edge odometry`.
@@ -42,9 +53,21 @@ pub fn odometry(args: OdometryArgs) -> Result<()> {
     }
     let pipeline = OdometryPipeline::new(&args.source.input, args.source.topic, args.max_frames, config, &args.out)?
         .with_loops(!args.no_loops);
+    let live = Arc::new(Live::new());
+    if let Some(path) = &args.record {
+        live.record_file(path)?;
+    }
+    let mut view = args.record.is_some().then(|| EdgeView::new(Arc::clone(&live), args.robot));
     let bar = progress_bar(pipeline.expected_scans(), "scans");
-    let report = pipeline.run(|_| bar.inc(1));
+    let report = pipeline.run(|done| {
+        bar.inc(1);
+        if let Some(view) = &mut view {
+            view.scan(done);
+        }
+    });
     bar.finish_and_clear();
+    // Closed even after a failed run: the scans before the failure are worth looking at.
+    live.close()?;
     println!("{}", report?.to_json()?);
     Ok(())
 }

@@ -363,9 +363,9 @@ impl OdometryPipeline {
         self.source.len
     }
 
-    /// Registers every scan (`progress` is told after each how many are done), writes the outputs
-    /// and returns the report.
-    pub fn run(self, mut progress: impl FnMut(usize)) -> Result<OdometryReport, PipelineError> {
+    /// Registers every scan (`progress` is shown each as it is done), writes the outputs and returns
+    /// the report.
+    pub fn run(self, mut progress: impl FnMut(&ScanDone<'_>)) -> Result<OdometryReport, PipelineError> {
         let mut track = self.loops.then(|| LoopTrack::new(self.config.loops.clone()));
         let mut odometry = Odometry::new(self.config)?;
         let mut memory = MemoryWatch::new(self.source.len);
@@ -375,7 +375,8 @@ impl OdometryPipeline {
                 track.observe(frame)?;
             }
             memory.observe(pass.len());
-            progress(pass.len());
+            let stamp = pass.estimate.stamps.as_ref().and_then(|s| s.last().copied()).unwrap_or(0.0);
+            progress(&ScanDone { scans: pass.len(), frame, stamp, loops: track.as_ref() });
             Ok(())
         })?;
         let summary = pass.stats.summary();
@@ -413,6 +414,18 @@ impl OdometryPipeline {
         scans.finish()?;
         Ok(report)
     }
+}
+
+/// One scan done, as [`OdometryPipeline::run`] shows it.
+pub struct ScanDone<'a> {
+    /// Scans registered so far.
+    pub scans: usize,
+    /// What the scan produced.
+    pub frame: &'a Frame,
+    /// The scan's stamp, seconds.
+    pub stamp: f64,
+    /// The loop closure after the scan, when it runs.
+    pub loops: Option<&'a LoopTrack>,
 }
 
 /// Writes a text file, naming it in the error.

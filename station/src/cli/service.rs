@@ -1,5 +1,6 @@
 //! `run`, `watch`, `save` and `keys`: the networked station and the tools that look at it.
 
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -7,6 +8,7 @@ use anyhow::{Context, Result};
 use bus::Network;
 use clap::Args;
 use cloud::Preset;
+use live::{Live, Sinks};
 use proto::{Fleet, keyexpr};
 use station::merge::MergeConfig;
 use station::merge::files;
@@ -43,6 +45,14 @@ pub struct RunArgs {
     /// Longest a change waits for its merge, milliseconds.
     #[arg(long, default_value_t = 10000)]
     max_delay_ms: u64,
+    /// Serve the live view over the Foxglove WebSocket protocol on this address (e.g.
+    /// 127.0.0.1:8765; open it in Foxglove as ws://ADDR): the global map, the robots' frames,
+    /// trajectories, keyframes, loops and statuses (topics in the README).
+    #[arg(long, value_name = "ADDR")]
+    foxglove: Option<SocketAddr>,
+    /// Record the same topics to this MCAP file.
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
     #[command(flatten)]
     network: bus::NetworkArgs,
 }
@@ -100,7 +110,7 @@ pub fn keys(args: KeysArgs) -> Result<()> {
 }
 
 pub fn run(args: RunArgs) -> Result<()> {
-    let RunArgs { fleet, data_dir, preset, debounce_ms, max_delay_ms, network } = args;
+    let RunArgs { fleet, data_dir, preset, debounce_ms, max_delay_ms, foxglove, record, network } = args;
     let config = StationConfig {
         data_dir: Some(data_dir),
         merge: MergeConfig::preset(preset),
@@ -109,7 +119,18 @@ pub fn run(args: RunArgs) -> Result<()> {
         ..StationConfig::new(Fleet::new(&fleet)?)
     };
     let rt = runtime()?;
-    rt.block_on(run_station(config, network.network(&[bus::DEFAULT_PORT])))?;
+    rt.block_on(async {
+        let live = Live::open(&Sinks { foxglove, record }, "emr-station").await?;
+        if let Some(addr) = live.as_ref().and_then(|l| l.address()) {
+            println!("Foxglove: ws://{addr}");
+        }
+        let config = StationConfig { live: live.clone(), ..config };
+        let ran = run_station(config, network.network(&[bus::DEFAULT_PORT])).await;
+        if let Some(live) = live {
+            live.finish().await?;
+        }
+        ran
+    })?;
     // A merge still running on a blocking thread has nothing left to publish to.
     rt.shutdown_timeout(Duration::from_secs(1));
     Ok(())

@@ -91,9 +91,9 @@ impl Merger {
         let (pairs, pairs_time) = timed(|| self.estimate_pairs(&ids, &prepared));
         let (layout, graph) = timed(|| layout(&prepared, &pairs, reference));
         let maps = self.map_reports(&ids, &prepared, &pairs, &layout.chained);
-        let (global_map, assemble) = timed(|| assemble(&prepared, &maps, self.config.output_voxel));
+        let ((global_map, origins), assemble) = timed(|| assemble(&prepared, &maps, self.config.output_voxel));
         let timing = MergeTiming { features, pairs: pairs_time, graph, assemble, total: watch.elapsed() };
-        Ok(MergeReport { maps, pairs, reference: layout.root, tree: layout.tree, global_map, timing })
+        Ok(MergeReport { maps, pairs, reference: layout.root, tree: layout.tree, global_map, origins, timing })
     }
 
     /// Prepares, in parallel, every map whose revision has no preparation yet.
@@ -221,24 +221,31 @@ fn status(p: usize, map: &PreparedMap, pairs: &[PairReport], chained: Option<&Ch
     MapStatus::Unmerged(if has_edge { Unmerged::OtherComponent } else { Unmerged::NoOverlap })
 }
 
-/// Paper eq. 11: the union of the merged maps in the global frame, voxelised to fuse duplicates.
-fn assemble(prepared: &[Arc<PreparedMap>], maps: &[MapReport], voxel: f32) -> PointCloud {
+/// Paper eq. 11: the union of the merged maps in the global frame, voxelised to fuse duplicates;
+/// with each point's map id.
+fn assemble(prepared: &[Arc<PreparedMap>], maps: &[MapReport], voxel: f32) -> (PointCloud, Vec<usize>) {
     let merged: Vec<usize> = (0..maps.len()).filter(|&p| maps[p].is_merged()).collect();
     // Ring and time are per-sweep quantities, meaningless in a global map; intensity is kept when
-    // every merged map has it.
+    // every merged map has it. The ring channel carries each point's map position through the
+    // voxel grid instead (a voxel keeps its first point's), and is taken out again below.
     let intensity = merged.iter().all(|&p| prepared[p].cloud.intensity.is_some());
     let moved: Vec<PointCloud> = merged
         .par_iter()
-        .map(|&p| {
+        .enumerate()
+        .map(|(k, &p)| {
             let c = &prepared[p].cloud;
-            let bare = PointCloud { points: c.points.clone(), intensity: c.intensity.clone(), ring: None, time: None };
+            let label = Some(vec![k as u16; c.len()]);
+            let bare = PointCloud { points: c.points.clone(), intensity: c.intensity.clone(), ring: label, time: None };
             bare.transformed(&maps[p].transform().cast::<f32>())
         })
         .collect();
     let n = moved.iter().map(PointCloud::len).sum();
-    let mut union = PointCloud::with_capacity(n, Channels { intensity, ring: false, time: false });
+    let mut union = PointCloud::with_capacity(n, Channels { intensity, ring: true, time: false });
     for c in &moved {
         union.extend(c);
     }
-    cloud::voxel::downsample(&union, voxel).expect("output_voxel is validated positive")
+    let mut global = cloud::voxel::downsample(&union, voxel).expect("output_voxel is validated positive");
+    let labels = global.ring.take().unwrap_or_default();
+    let origins = labels.iter().map(|&k| maps[merged[usize::from(k)]].id).collect();
+    (global, origins)
 }

@@ -369,6 +369,9 @@ pub struct MergeReport {
     pub tree: Vec<(usize, usize)>,
     /// The global map (paper eq. 11), in the reference frame.
     pub global_map: PointCloud,
+    /// Per point of `global_map`, the id of the map it came from (of a voxel's first point when
+    /// several maps met in it): what a viewer colours by.
+    pub origins: Vec<usize>,
     /// Time per stage.
     pub timing: MergeTiming,
 }

@@ -11,6 +11,7 @@ use proto::codec::{self, DecodeLimits};
 use proto::{Fleet, Keyframe, PoseGraphUpdate};
 
 use super::fleet_state::ReceivedKeyframe;
+use super::live_view::LoopEdge;
 
 /// Largest keyframe payload accepted, bytes (a keyframe is a downsampled scan: a few MB at most).
 pub const MAX_KEYFRAME_BYTES: usize = 64 << 20;
@@ -42,6 +43,8 @@ pub struct ReceivedPoses {
     pub revision: u64,
     /// Optimised poses by sequence number.
     pub poses: BTreeMap<u64, Isometry3<f64>>,
+    /// The graph's loop edges.
+    pub loops: Vec<LoopEdge>,
 }
 
 /// Checks and decodes a keyframe that arrived on `key` for `robot` of `fleet`.
@@ -64,7 +67,8 @@ pub fn poses(fleet: &Fleet, robot: u32, key: &str, bytes: &[u8]) -> Result<Recei
         let iso = pose(p.pose.as_ref()).map_err(|e| bad(format!("pose of keyframe {}: {e}", p.seq)))?;
         poses.insert(p.seq, iso);
     }
-    Ok(ReceivedPoses { robot, revision: update.revision, poses })
+    let loops = update.loops.iter().map(|l| LoopEdge { from: l.from_seq, to: l.to_seq }).collect();
+    Ok(ReceivedPoses { robot, revision: update.revision, poses, loops })
 }
 
 /// Builds the error for a payload of `kind` on `key` from a reason.

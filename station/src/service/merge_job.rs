@@ -57,6 +57,17 @@ pub struct MergeOutcome {
     pub basis: BTreeMap<u32, Basis>,
     /// Wall time of the job.
     pub elapsed: Duration,
+    /// The global map's points as merged, before the codec, with their robots (for the live view).
+    pub cloud: MapCloud,
+}
+
+/// The global map's points with the robot each came from.
+#[derive(Clone, Debug, Default)]
+pub struct MapCloud {
+    /// The points, in the global frame.
+    pub cloud: PointCloud,
+    /// Per point, its robot.
+    pub robots: Vec<u32>,
 }
 
 /// The merger and what it has been given, kept across jobs so that re-merges reuse its caches.
@@ -88,7 +99,9 @@ impl MergeWorker {
         let map = global_map(fleet, revision, &report, robots);
         let bytes = map.encode_to_vec();
         let basis = robots.iter().map(|r| (r.robot, r.basis)).collect();
-        Ok(MergeOutcome { map, bytes, basis, elapsed: clock.elapsed() })
+        // Map ids are robot ids (see `RobotSnapshot::robot`).
+        let cloud = MapCloud { robots: report.origins.iter().map(|&id| id as u32).collect(), cloud: report.global_map };
+        Ok(MergeOutcome { map, bytes, basis, elapsed: clock.elapsed(), cloud })
     }
 }
 

@@ -6,6 +6,7 @@
 //! - [`backfill`]: which keyframes to ask a robot's keyframe store for, one request at a time.
 //! - [`merge_queue`]: coalesced, debounced merge scheduling.
 //! - [`merge_job`]: local maps, the long-lived merger and the `GlobalMap` message.
+//! - [`live_view`]: the live view and recording (`--foxglove`, `--record`), when one is given.
 //! - [`store`]: persistence in redb, written in batches by a writer thread.
 //! - [`station`]: the event loop tying them together; [`Station`] and [`run`] start it.
 //! - [`client`]: what other processes use: fetching the global map, summarising samples.
@@ -17,6 +18,7 @@ pub mod backfill;
 pub mod client;
 pub mod fleet_state;
 pub mod ingest;
+pub mod live_view;
 pub mod merge_job;
 pub mod merge_queue;
 pub mod station;
@@ -24,8 +26,10 @@ pub mod store;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
+use live::Live;
 use proto::{Fleet, GlobalMap};
 
 use crate::merge::{MergeConfig, MergeError};
@@ -47,10 +51,12 @@ pub struct StationConfig {
     pub max_delay: Duration,
     /// Period of the `StationStatus` messages.
     pub status_period: Duration,
+    /// Where the live view goes (a Foxglove server, an MCAP recording); `None`: nowhere.
+    pub live: Option<Arc<Live>>,
 }
 
 impl StationConfig {
-    /// In-memory, outdoor merge preset (see `emr-station run --preset`), 2 s debounce, 10 s at most, status every second.
+    /// In-memory, outdoor merge preset (see `emr-station run --preset`), 2 s debounce, 10 s at most, status every second, no live view.
     pub fn new(fleet: Fleet) -> Self {
         Self {
             fleet,
@@ -59,6 +65,7 @@ impl StationConfig {
             debounce: Duration::from_secs(2),
             max_delay: Duration::from_secs(10),
             status_period: Duration::from_secs(1),
+            live: None,
         }
     }
 }

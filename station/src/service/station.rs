@@ -19,9 +19,11 @@ use zenoh::query::{ConsolidationMode, Query, Queryable};
 use zenoh::sample::{Sample, SampleKind};
 
 use super::backfill::{Backfill, Want};
+use super::client::global_map_cloud;
 use super::fleet_state::{Basis, FleetState, Inserted, ReceivedKeyframe};
 use super::ingest::{self, Malformed};
-use super::merge_job::{MergeOutcome, MergeWorker, snapshot};
+use super::live_view::StationView;
+use super::merge_job::{MapCloud, MergeOutcome, MergeWorker, snapshot};
 use super::merge_queue::MergeQueue;
 use super::store::{self, Persisted, Store, Write};
 use super::{StationConfig, StationError, StationProgress, StationSummary};
@@ -254,6 +256,8 @@ struct Core {
     writer: Option<WriterHandle>,
     progress: Arc<watch::Sender<StationProgress>>,
     events: mpsc::UnboundedSender<Event>,
+    /// The live view, when one is configured.
+    view: Option<StationView>,
 }
 
 impl Core {
@@ -286,6 +290,7 @@ impl Core {
             writer,
             progress,
             events,
+            view: config.live.clone().map(StationView::new),
         }
     }
 
@@ -295,6 +300,11 @@ impl Core {
             info!("serving persisted global map revision {}", p.map.revision);
             if let Err(e) = endpoints.global_map.put(p.bytes.to_vec()).await {
                 warn!("cannot publish the global map: {e}");
+            }
+            if let Some(view) = &self.view {
+                // Which robot each point came from is not persisted: the reloaded map has no labels.
+                let cloud = MapCloud { cloud: global_map_cloud(&p.map).unwrap_or_default(), robots: vec![] };
+                view.map(&p.map, &cloud, &self.state);
             }
         }
         self.report_progress();
@@ -359,6 +369,11 @@ impl Core {
         let (robot, seq, bytes) = (kf.robot, kf.seq, Arc::clone(&kf.bytes));
         match self.state.insert_keyframe(kf) {
             Inserted::New => {
+                if let Some(view) = &self.view
+                    && let Some(kf) = self.state.robot(robot).and_then(|r| r.keyframes().get(&seq))
+                {
+                    view.keyframe(kf);
+                }
                 self.persist(Write::Keyframe { robot, seq, bytes });
                 self.queue.changed(Instant::now());
                 if origin == Origin::Backfill {
@@ -378,6 +393,9 @@ impl Core {
                 if self.state.apply_poses(p.robot, p.revision, p.poses) {
                     self.persist(Write::PoseGraph { robot, bytes: Arc::from(bytes) });
                     self.queue.changed(Instant::now());
+                    if let Some(view) = &mut self.view {
+                        view.poses(robot, p.loops, &self.state);
+                    }
                 }
             }
             Err(e) => self.malformed(&e),
@@ -475,7 +493,7 @@ impl Core {
     }
 
     async fn publish_map(&mut self, outcome: MergeOutcome, publisher: &Publisher<'static>) {
-        let MergeOutcome { map, bytes, basis, elapsed } = outcome;
+        let MergeOutcome { map, bytes, basis, elapsed, cloud } = outcome;
         let ms = cloud::stopwatch::millis(elapsed);
         let merged = map.robots.iter().filter(|r| r.status == proto::MergeStatus::Merged as i32).count();
         info!("global map revision {}: {merged} of {} robots merged ({ms:.0} ms)", map.revision, map.robots.len());
@@ -489,6 +507,9 @@ impl Core {
         self.await_committed(map.revision).await;
         if let Err(e) = publisher.put(bytes.to_vec()).await {
             warn!("cannot publish the global map: {e}");
+        }
+        if let Some(view) = &self.view {
+            view.map(&map, &cloud, &self.state);
         }
         self.latest = Some(Published { map, bytes });
     }
@@ -504,6 +525,9 @@ impl Core {
             malformed_payloads: self.counters.malformed,
             stamp: Some(Timestamp::now()),
         };
+        if let Some(view) = &self.view {
+            view.status(&status, self.counters.merges);
+        }
         if let Err(e) = publisher.put(status.encode_to_vec()).await {
             debug!("cannot publish the status: {e}");
         }

@@ -1,0 +1,114 @@
+//! The station's live view (`emr-station run --foxglove`, `--record`): what it holds and merges,
+//! published on the topics of [`live::topics`] as it changes. Only built when a [`Live`] is given
+//! ([`super::StationConfig::live`]); with no client subscribed and no recording, the streamed
+//! topics build nothing.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use live::{Kind, Live, Stamp, topics};
+use nalgebra::{Isometry3, Point3};
+use proto::{GlobalMap, MergeStatus, StationStatus};
+use serde_json::json;
+
+use super::fleet_state::{FleetState, ReceivedKeyframe, RobotState};
+use super::merge_job::MapCloud;
+
+/// A loop edge of a robot's pose graph: keyframe sequence numbers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LoopEdge {
+    /// The older keyframe.
+    pub from: u64,
+    /// The newer keyframe.
+    pub to: u64,
+}
+
+/// Publishes the station's state to a [`Live`].
+pub struct StationView {
+    live: Arc<Live>,
+    /// Loop edges of each robot's newest pose graph.
+    loops: BTreeMap<u32, Vec<LoopEdge>>,
+}
+
+impl StationView {
+    /// A view publishing to `live`.
+    pub fn new(live: Arc<Live>) -> Self {
+        StationView { live, loops: BTreeMap::new() }
+    }
+
+    /// A keyframe the station had not held.
+    pub fn keyframe(&self, kf: &ReceivedKeyframe) {
+        self.live.keyframe(kf.robot, &kf.odom_pose, &kf.cloud, Stamp::Now);
+    }
+
+    /// A pose-graph update of `robot` that changed its poses: its trajectory and loop edges.
+    pub fn poses(&mut self, robot: u32, loops: Vec<LoopEdge>, state: &FleetState) {
+        self.loops.insert(robot, loops);
+        if let Some(r) = state.robot(robot) {
+            self.robot_shape(robot, r);
+        }
+    }
+
+    /// A published global map: the map, the robots' frames, trajectories, loops and statuses.
+    pub fn map(&self, map: &GlobalMap, cloud: &MapCloud, state: &FleetState) {
+        self.live.map(&cloud.cloud, &cloud.robots, Stamp::Now);
+        let placed: Vec<(String, Isometry3<f64>)> = map
+            .robots
+            .iter()
+            .filter(|p| p.status() == MergeStatus::Merged)
+            .filter_map(|p| Some((topics::robot_frame(p.robot), Isometry3::try_from(p.transform.as_ref()?).ok()?)))
+            .collect();
+        self.live.frames(topics::MAP_FRAME, &placed, Kind::Latched, Stamp::Now);
+        for placement in &map.robots {
+            let robot = placement.robot;
+            let held = state.robot(robot);
+            self.live.robot_status(robot, Stamp::Now, || {
+                json!({
+                    "robot": robot,
+                    "revision": map.revision,
+                    "status": if placement.status() == MergeStatus::Merged { "merged" } else { "unmerged" },
+                    "confidence": placement.confidence,
+                    "keyframes_in_map": placement.keyframes,
+                    "keyframes_held": held.map_or(0, |r| r.keyframes().len()),
+                    "pose_revision": held.and_then(RobotState::pose_revision),
+                    "loops": self.loops.get(&robot).map_or(0, Vec::len),
+                    "reference": robot == map.reference_robot,
+                })
+            });
+            if let Some(r) = held {
+                self.robot_shape(robot, r);
+            }
+        }
+    }
+
+    /// The station's periodic status.
+    pub fn status(&self, status: &StationStatus, merges: u64) {
+        self.live.station_status(Stamp::Now, || {
+            json!({
+                "fleet": status.fleet,
+                "robots": status.robots,
+                "keyframes": status.keyframes,
+                "merge_queue_depth": status.merge_queue_depth,
+                "merges": merges,
+                "last_merge_ms": status.last_merge_ms,
+                "global_map_revision": status.global_map_revision,
+                "malformed_payloads": status.malformed_payloads,
+            })
+        });
+    }
+
+    /// A robot's trajectory and loop lines at its best poses.
+    fn robot_shape(&self, robot: u32, r: &RobotState) {
+        let poses: Vec<Isometry3<f64>> = r.keyframes().keys().filter_map(|&seq| r.pose(seq)).collect();
+        self.live.trajectory(robot, &poses, Stamp::Now);
+        let position = |seq| -> Option<Point3<f64>> { r.pose(seq).map(|p| p.translation.vector.into()) };
+        let segments: Vec<_> = self
+            .loops
+            .get(&robot)
+            .into_iter()
+            .flatten()
+            .filter_map(|l| Some([position(l.from)?, position(l.to)?]))
+            .collect();
+        self.live.loops(robot, &segments, Stamp::Now);
+    }
+}
