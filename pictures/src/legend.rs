@@ -10,8 +10,9 @@ use crate::{PictureError, Rgb, draw_error};
 
 /// What a legend entry shows left of its label.
 pub(crate) enum Sample {
-    /// A robot: a square of its map tint crossed by a line of its trajectory colour.
-    Robot { map: Rgb, track: Rgb },
+    /// A robot: a square of its map tint, crossed by a line of its trajectory colour when it
+    /// has one.
+    Robot { map: Rgb, track: Option<Rgb> },
     /// A line of this colour and width, solid or dashed.
     Line { colour: Rgb, width: u32, dashed: bool },
 }
@@ -67,7 +68,10 @@ fn draw_sample<DB: DrawingBackend>(
             let half = font_px / 2;
             area.draw(&Rectangle::new([(x0, y - half), (x1, y + half)], map.plotters().filled()))
                 .map_err(draw_error)?;
-            line(area, (x0, x1), y, track, 3, false)
+            match track {
+                Some(track) => line(area, (x0, x1), y, track, 3, false),
+                None => Ok(()),
+            }
         }
         Sample::Line { colour, width, dashed } => line(area, (x0, x1), y, colour, width, dashed),
     }

@@ -26,6 +26,20 @@ impl Rgb {
         Rgb(mix(self.0), mix(self.1), mix(self.2))
     }
 
+    /// Whether this colour lies on the way from white to `colour` (some `colour.tint(a)` with `a`
+    /// above 0.1, within rounding), e.g. a map pixel of that robot. For reading pictures back.
+    pub fn is_tint_of(self, colour: Rgb) -> bool {
+        let pairs = [(self.0, colour.0), (self.1, colour.1), (self.2, colour.2)];
+        // A channel at 255 in the colour stays 255 in every tint and tells nothing more.
+        if pairs.iter().any(|&(p, c)| c == 255 && p != 255) {
+            return false;
+        }
+        let amounts =
+            pairs.iter().filter(|&&(_, c)| c < 255).map(|&(p, c)| (255.0 - f64::from(p)) / (255.0 - f64::from(c)));
+        let (lo, hi) = amounts.fold((f64::INFINITY, 0.0f64), |(lo, hi), a| (lo.min(a), hi.max(a)));
+        hi > 0.1 && hi - lo < 0.05
+    }
+
     pub(crate) fn plotters(self) -> RGBColor {
         RGBColor(self.0, self.1, self.2)
     }
@@ -109,5 +123,16 @@ mod tests {
         assert_eq!(c.tint(0.0), Rgb::WHITE);
         assert_eq!(c.tint(1.0), c);
         assert_eq!(c.shade(0.5), Rgb(16, 60, 90));
+    }
+
+    #[test]
+    fn tints_are_recognised_and_other_colours_are_not() {
+        let (blue, orange) = (Rgb(31, 119, 180), Rgb(255, 127, 14));
+        for a in [0.25, 0.5, 0.75, 1.0] {
+            assert!(blue.tint(a).is_tint_of(blue) && orange.tint(a).is_tint_of(orange));
+            assert!(!blue.tint(a).is_tint_of(orange) && !orange.tint(a).is_tint_of(blue));
+        }
+        assert!(!Rgb::WHITE.is_tint_of(blue));
+        assert!(!Rgb(200, 200, 200).is_tint_of(blue));
     }
 }

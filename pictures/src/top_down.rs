@@ -56,7 +56,8 @@ pub struct TopDownConfig {
     /// Side of a map density cell in pixels (default 2): points are counted per cell, not drawn
     /// one by one, so a million points cost a million additions.
     pub cell_px: u32,
-    /// Tint of the sparsest map cell, 0 (white) to 1 (the robot's colour) (default 0.25).
+    /// Tint of the sparsest map cell, 0 (white) to 1 (the robot's colour) (default 0.4: a
+    /// lone point stays visible).
     pub map_tint_min: f64,
     /// Tint of the densest map cells (default 0.75): below the trajectories' full colour so
     /// these stand out.
@@ -69,7 +70,8 @@ pub struct TopDownConfig {
     pub track_px: u32,
     /// True trajectory line colour (default black), drawn dashed over the estimate.
     pub truth_colour: Rgb,
-    /// True trajectory line width in pixels (default 2).
+    /// True trajectory line width in pixels (default 1: thinner than the estimate, which shows
+    /// on both sides of it where they agree).
     pub truth_px: u32,
     /// Text size in pixels (default 20; the title 1.2 times that).
     pub font_px: u32,
@@ -86,13 +88,13 @@ impl Default for TopDownConfig {
             height: 1000,
             palette: Palette::default(),
             cell_px: 2,
-            map_tint_min: 0.25,
+            map_tint_min: 0.4,
             map_tint_max: 0.75,
             height_band: None,
             track_shade: 0.8,
             track_px: 3,
             truth_colour: Rgb::BLACK,
-            truth_px: 2,
+            truth_px: 1,
             font_px: 20,
             legend_px: 280,
             pad: 0.03,
@@ -307,7 +309,7 @@ fn legend_entries(scene: &TopDown, config: &TopDownConfig) -> Vec<Entry> {
             label: r.label.clone(),
             sample: Sample::Robot {
                 map: config.palette.colour(i).tint(config.map_tint_max),
-                track: config.track_colour(i),
+                track: (!r.estimated.is_empty()).then(|| config.track_colour(i)),
             },
         })
         .collect();

@@ -32,22 +32,6 @@ impl Image {
     }
 }
 
-/// Whether `px` lies on the way from white to `colour` (a map tint of it), not white itself.
-fn is_tint_of(px: Rgb, colour: Rgb) -> bool {
-    let pairs = [(px.0, colour.0), (px.1, colour.1), (px.2, colour.2)];
-    // A channel at 255 in the colour stays 255 in every tint and tells nothing more.
-    if pairs.iter().any(|&(p, c)| c == 255 && p != 255) {
-        return false;
-    }
-    let f: Vec<f64> = pairs
-        .iter()
-        .filter(|&&(_, c)| c < 255)
-        .map(|&(p, c)| (255.0 - f64::from(p)) / (255.0 - f64::from(c)))
-        .collect();
-    let (lo, hi) = (f.iter().cloned().fold(f64::INFINITY, f64::min), f.iter().cloned().fold(0.0, f64::max));
-    hi > 0.1 && hi - lo < 0.05
-}
-
 /// Points filling the square [x0, x0 + side] x [y0, y0 + side] at height z every `step` metres.
 fn square(x0: f32, y0: f32, side: f32, z: f32, step: f32) -> Vec<[f32; 3]> {
     let n = (side / step) as usize;
@@ -135,9 +119,9 @@ fn map_points_are_tinted_with_their_robots_colour_and_nothing_else_is() {
     let (a, b) = (config.palette.colour(0), config.palette.colour(1));
     for (x, y) in [(1.0, 1.0), (8.5, 2.0), (2.0, 8.0), (9.0, 9.0)] {
         let px = image.at(view.pixel(x, y));
-        assert!(is_tint_of(px, a) && !is_tint_of(px, b), "A's map at ({x}, {y}): {px:?}");
+        assert!(px.is_tint_of(a) && !px.is_tint_of(b), "A's map at ({x}, {y}): {px:?}");
         let px = image.at(view.pixel(20.0 + x, y));
-        assert!(is_tint_of(px, b) && !is_tint_of(px, a), "B's map at ({}, {y}): {px:?}", 20.0 + x);
+        assert!(px.is_tint_of(b) && !px.is_tint_of(a), "B's map at ({}, {y}): {px:?}", 20.0 + x);
     }
     // Between the squares and above them: no map (white or a grey grid line).
     for (x, y) in [(15.0, 5.0), (5.0, 13.0), (12.0, 1.0)] {
@@ -156,7 +140,7 @@ fn a_metre_is_as_long_in_x_as_in_y() {
     // Robot A's map is square on screen: its tinted pixels span as many columns as rows.
     let a = config.palette.colour(0);
     let tinted: Vec<(i32, i32)> =
-        image.pixels().filter(|&(p, c)| picture.view.contains(p) && is_tint_of(c, a)).map(|(p, _)| p).collect();
+        image.pixels().filter(|&(p, c)| picture.view.contains(p) && c.is_tint_of(a)).map(|(p, _)| p).collect();
     let span = |f: fn(&(i32, i32)) -> i32| tinted.iter().map(f).max().unwrap() - tinted.iter().map(f).min().unwrap();
     let (cols, rows) = (span(|p| p.0), span(|p| p.1));
     let expected = 10.0 * px_x;
@@ -190,14 +174,14 @@ fn height_band_drops_points_outside_it() {
     let picture = top_down(&scene, &config).unwrap();
     let image = Image::decode(&picture.png);
     let px = image.at(picture.view.pixel(2.0, 2.0));
-    assert!(is_tint_of(px, config.palette.colour(0)), "A's floor under a cut ceiling: {px:?}");
+    assert!(px.is_tint_of(config.palette.colour(0)), "A's floor under a cut ceiling: {px:?}");
     // Without the band robot B's ceiling covers it (B has as many points there, and wins ties
     // only when it has more; add a second layer to be sure).
     scene.robots[1].points.extend(square(0.0, 0.0, 10.0, 4.5, 0.05));
     let picture = top_down(&scene, &small_config()).unwrap();
     let image = Image::decode(&picture.png);
     let px = image.at(picture.view.pixel(2.0, 2.0));
-    assert!(is_tint_of(px, small_config().palette.colour(1)), "B's ceiling without a band: {px:?}");
+    assert!(px.is_tint_of(small_config().palette.colour(1)), "B's ceiling without a band: {px:?}");
 }
 
 #[test]
