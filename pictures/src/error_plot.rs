@@ -62,7 +62,8 @@ pub struct ErrorPlotConfig {
     pub palette: Palette,
     /// Lines darkened by this factor, as the top-down view's trajectories (default 0.8).
     pub line_shade: f64,
-    /// Line width in pixels (default 2).
+    /// Line width in pixels (default 1: plotters draws thicker polylines as polygons per
+    /// segment, which break up on steep, jittery error curves).
     pub line_px: u32,
     /// Text size in pixels (default 20).
     pub font_px: u32,
@@ -78,7 +79,7 @@ impl Default for ErrorPlotConfig {
             height: 700,
             palette: Palette::default(),
             line_shade: 0.8,
-            line_px: 2,
+            line_px: 1,
             font_px: 20,
             legend_px: 340,
         }
@@ -118,7 +119,7 @@ pub fn error_over_distance(
         for (i, curve) in curves.iter().enumerate() {
             let colour = config.palette.colour(i).shade(config.line_shade);
             let style = ShapeStyle::from(colour.plotters()).stroke_width(config.line_px);
-            let points = curve.samples.iter().map(|s| (s.distance_m, s.error_m));
+            let points = thinned(&chart, &curve.samples);
             chart.draw_series(LineSeries::new(points, style)).map_err(draw_error)?;
             let sample = Sample::Line { colour, width: config.line_px.max(3), dashed: false };
             entries.push(Entry { label: curve.label.clone(), sample });
@@ -129,6 +130,22 @@ pub fn error_over_distance(
         axes::view_of(&chart)
     };
     Ok(ErrorPicture { png: encode::png_rgb(&rgb, w, h)?, view })
+}
+
+/// The samples, less those within 2 px of the previous one kept: thick lines made of sub-pixel
+/// segments come out broken.
+fn thinned(chart: &axes::Chart<'_, '_>, samples: &[ErrorSample]) -> Vec<(f64, f64)> {
+    let mut kept: Vec<(f64, f64)> = Vec::new();
+    let mut last_px: Option<(i32, i32)> = None;
+    for (i, s) in samples.iter().enumerate() {
+        let px = chart.backend_coord(&(s.distance_m, s.error_m));
+        let near = last_px.is_some_and(|l| (l.0 - px.0).abs() < 2 && (l.1 - px.1).abs() < 2);
+        if !near || i + 1 == samples.len() {
+            kept.push((s.distance_m, s.error_m));
+            last_px = Some(px);
+        }
+    }
+    kept
 }
 
 /// The largest distance and error over all curves; fails on none or on a non-finite value.
