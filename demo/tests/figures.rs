@@ -55,7 +55,8 @@ async fn the_demo_draws_its_map_trajectories_and_errors() {
     assert_eq!((image.width, image.height), (errors.width, errors.height));
     for i in 0..2 {
         let n = image.count(errors.palette.colour(i).shade(errors.line_shade));
-        assert!(n > 100, "robot {}'s error line: {n} pixels", i + 1);
+        // Beyond its 120 px legend sample: a 1 px line, partly under the other one.
+        assert!(n > 250, "robot {}'s error line: {n} pixels", i + 1);
     }
     assert!(report.written.iter().any(|p| p.ends_with("top_down.png")));
     assert!(report.written.iter().any(|p| p.ends_with("error_over_distance.png")));
