@@ -9,6 +9,7 @@
 //! [`fleet_load`] puts a station under a simulated fleet's load the same way (`emr-demo bench load`).
 //! This crate is the one place where robot code and station code meet.
 
+mod figures;
 pub mod fleet_load;
 
 use std::collections::BTreeMap;
@@ -344,7 +345,8 @@ fn ate(truth: &[Isometry3<f64>], est: &[Isometry3<f64>], align: bool) -> Ate {
 }
 
 /// Writes `out/`: global_map.ply, placements.json, per robot the estimated and true trajectories
-/// (TUM, in the global frame when merged, else the robot's own) and summary.json.
+/// (TUM, in the global frame when merged, else the robot's own), summary.json, and the figures
+/// top_down.png and error_over_distance.png.
 fn write_results(
     config: &DemoConfig,
     summaries: &BTreeMap<u32, NodeSummary>,
@@ -370,6 +372,11 @@ fn write_results(
             std::fs::write(&path, t.to_tum()).map_err(|e| write_error(&path, e))?;
             written.push(path);
         }
+    }
+    for figure in figures::figures(&config.scenario, summaries, &cloud, robots).map_err(|e| write_error(out, e))? {
+        let path = out.join(figure.file);
+        std::fs::write(&path, figure.png).map_err(|e| write_error(&path, e))?;
+        written.push(path);
     }
     let path = out.join("placements.json");
     write_json(&path, &placements_json(map))?;

@@ -16,7 +16,8 @@ use edge::node::Rate;
 /// With no command (or `run`): the simulated two-robot warehouse, both edges and the station as
 /// tasks of one process talking over Zenoh on loopback. Ends by writing OUT/global_map.ply,
 /// OUT/placements.json, per robot its trajectory (estimated and ground truth, TUM, in the global
-/// frame) and OUT/summary.json (confidences, ATE per robot, timings).
+/// frame), OUT/summary.json (confidences, ATE per robot, timings), OUT/top_down.png (the global
+/// map from above with the trajectories) and OUT/error_over_distance.png.
 #[derive(Parser, Debug)]
 #[command(name = "emr-demo", version, about, long_about, args_conflicts_with_subcommands = true)]
 struct Cli {

@@ -35,7 +35,8 @@ enum Command {
     /// the weakest tree edge to the reference, 1 for the reference, 0 unmerged) and `status`
     /// ("merged" or "unmerged"); per accepted pair an edge {a, b, transform, confidence, inliers}
     /// whose transform maps map b's points into map a's frame (a, b: 0-based input positions);
-    /// and `timing_ms` per stage.
+    /// and `timing_ms` per stage; and DIR/top_down.png: the merged maps seen from above in the
+    /// global frame, one colour per input.
     Merge(files::MergeArgs),
     /// Register SOURCE onto TARGET; prints the 4x4 transform mapping SOURCE points into the
     /// TARGET frame (4 lines, row-major) and a confidence line.

@@ -135,6 +135,23 @@ fn merge_writes_the_global_map_and_transforms_json() {
     assert!(doc["timing_ms"]["total"].as_f64().unwrap() > 0.0);
     let global = cloud::formats::read_cloud(&out.join("global_map.ply")).unwrap().cloud;
     assert!(global.len() > 10_000, "{} points", global.len());
+    assert_top_view_shows_both_maps(&out.join("top_down.png"));
+}
+
+/// The top view decodes at the default size and many pixels carry each input's colour.
+fn assert_top_view_shows_both_maps(path: &Path) {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().expect("PNG header");
+    let mut rgb = vec![0; reader.output_buffer_size().expect("buffer size")];
+    let info = reader.next_frame(&mut rgb).expect("PNG data");
+    let config = pictures::TopDownConfig::default();
+    assert_eq!((info.width, info.height, info.color_type), (config.width, config.height, png::ColorType::Rgb));
+    for i in 0..2 {
+        let colour = config.palette.colour(i);
+        let n = rgb.chunks_exact(3).filter(|p| pictures::Rgb(p[0], p[1], p[2]).is_tint_of(colour)).count();
+        // Two KITTI scans, 120k points each, over a ~1000 x 900 px plot.
+        assert!(n > 5_000, "input {i}: {n} pixels in its colour");
+    }
 }
 
 #[test]

@@ -126,6 +126,7 @@ fn print_merge(inputs: &[PathBuf], report: &MergeReport, out: &Path) {
         out.join("global_map.ply").display(),
         cloud::stopwatch::millis(report.timing.total)
     );
+    println!("top view in {}", out.join("top_down.png").display());
 }
 
 fn print_alignment(a: &Alignment) {

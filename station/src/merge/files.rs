@@ -1,5 +1,5 @@
 //! File-level entry points behind `emr-station merge` and `emr-station align`: read clouds, run the
-//! library, write `global_map.ply` and `transforms.json`.
+//! library, write `global_map.ply`, `transforms.json` and `top_down.png`.
 
 use std::path::{Path, PathBuf};
 
@@ -9,6 +9,7 @@ use cloud::kdtree::KdTree;
 use cloud::registration::{Method, RegistrationError, align};
 use cloud::voxel::downsample;
 use nalgebra::Isometry3;
+use pictures::{PictureError, RobotLayer, TopDown, TopDownConfig};
 use serde_json::{Value, json};
 
 use super::PairRejection;
@@ -46,6 +47,9 @@ pub enum FilesError {
     /// Global registration found no reliable transform.
     #[error("not aligned: {0}")]
     NotAligned(PairRejection),
+    /// The top-down picture could not be drawn.
+    #[error("top_down.png: {0}")]
+    Picture(#[from] PictureError),
 }
 
 /// Reads every map (.pcd, .ply, .bin); non-finite points are dropped by the readers.
@@ -112,7 +116,32 @@ pub fn merge_files(inputs: &[PathBuf], dir: &Path, config: &MergeConfig) -> Resu
     let json_path = dir.join("transforms.json");
     let text = serde_json::to_string_pretty(&transforms_json(inputs, &report)).expect("JSON values always serialise");
     std::fs::write(&json_path, text + "\n").map_err(|source| FilesError::Io { path: json_path, source })?;
+    let png_path = dir.join("top_down.png");
+    let png = top_down_png(inputs, &maps, &report, &TopDownConfig::default())?;
+    std::fs::write(&png_path, png).map_err(|source| FilesError::Io { path: png_path, source })?;
     Ok(report)
+}
+
+/// The merged maps seen from above in the global frame, each input in its own colour (PNG
+/// bytes). Unmerged maps are listed in the legend and not drawn: they have no place there.
+pub fn top_down_png(
+    inputs: &[PathBuf],
+    maps: &[PointCloud],
+    report: &MergeReport,
+    config: &TopDownConfig,
+) -> Result<Vec<u8>, FilesError> {
+    let robots = report.maps.iter().zip(inputs).zip(maps).map(|((m, path), map)| {
+        let name = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+        if !m.is_merged() {
+            return RobotLayer { label: format!("{name}: unmerged"), ..RobotLayer::default() };
+        }
+        let t = m.transform().cast::<f32>();
+        let points = map.points.iter().map(|p| (t * p).coords.into()).collect();
+        RobotLayer { label: name, points, ..RobotLayer::default() }
+    });
+    let title = format!("emr-station merge: {} of {} maps merged, top view", report.merged(), report.maps.len());
+    let scene = TopDown { title, robots: robots.collect() };
+    Ok(pictures::top_down(&scene, config)?.png)
 }
 
 /// How `emr-station align` registers a pair.
