@@ -6,11 +6,15 @@
 //! are done and the station has published a global map built from every keyframe, the demo stops
 //! everything and writes its results, judged against the simulator's ground truth.
 //!
+//! [`report`] runs the paper's four systems (MR/EMR × A-LOAM/F-LOAM) through the demo and tabulates
+//! them (`emr-demo report`).
+//!
 //! [`fleet_load`] puts a station under a simulated fleet's load the same way (`emr-demo bench load`).
 //! This crate is the one place where robot code and station code meet.
 
 mod figures;
 pub mod fleet_load;
+pub mod report;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -19,6 +23,7 @@ use std::time::{Duration, Instant};
 
 use cloud::trajectory::{self, Ate, Trajectory};
 use edge::node::{self, NodeConfig, NodeSummary, Rate, SourceEnd};
+use edge::odometry::Method;
 use edge::source::SourceSpec;
 use nalgebra::Isometry3;
 use proto::{Fleet, GlobalMap, MergeStatus};
@@ -45,6 +50,10 @@ pub struct DemoConfig {
     pub out: PathBuf,
     /// Station settings (default: the outdoor merge preset, as `emr-station run`; 1 s debounce; in memory).
     pub station: StationConfig,
+    /// The robots' odometry: F-LOAM (default) or A-LOAM ([`edge::odometry::aloam`]).
+    pub method: Method,
+    /// Robots close their own loops (default true: the paper's EMR systems; false: MR).
+    pub loops: bool,
 }
 
 impl DemoConfig {
@@ -63,6 +72,8 @@ impl DemoConfig {
             rate: Rate::Max,
             out: PathBuf::from("out/demo"),
             station,
+            method: Method::Floam,
+            loops: true,
         }
     }
 }
@@ -129,6 +140,8 @@ pub struct RobotResult {
     pub confidence: f64,
     /// Merged or not.
     pub merged: bool,
+    /// Wall time of the odometry on each scan, milliseconds.
+    pub odometry_ms: Vec<f64>,
 }
 
 /// Where a merged robot's odometry frame lies in the global frame.
@@ -215,14 +228,16 @@ async fn start_edge(
 ) -> Result<EdgeTask, DemoError> {
     let session = open(&bus::Network::loopback_ports(&[], &[port])).await?;
     let source = SourceSpec::Sim { scenario: config.scenario.clone(), robot };
-    let node_config = NodeConfig {
+    let mut node_config = NodeConfig {
         max_frames: config.frames,
         rate: config.rate,
         on_source_end: Some(SourceEnd(Arc::new(move |s: &NodeSummary| {
             let _ = done.send((robot, SourceDone { keyframes: s.keyframes, pose_revision: s.posegraph_revision }));
         }))),
+        loops: config.loops,
         ..NodeConfig::new(config.station.fleet.clone(), robot, source)
     };
+    node_config.odometry.method = config.method;
     let (stop, stopped) = oneshot::channel();
     let task = tokio::spawn(async move {
         let summary = node::run(&session, node_config, async {
@@ -324,6 +339,7 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotRe
                 frame,
                 confidence: placement.map_or(0.0, |p| p.confidence),
                 merged,
+                odometry_ms: s.odometry_ms.clone(),
             }
         })
         .collect()

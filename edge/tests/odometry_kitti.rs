@@ -47,7 +47,7 @@ fn kitti00_first_16_frames_within_5_cm_ate() {
 fn the_pipeline_writes_the_poses_the_odometry_estimates() {
     // The library pipeline (what `emr-edge odometry` runs) against the odometry called by hand:
     // the same poses, to the last digit of the KITTI file.
-    let config = Tuning { preset: Preset::Outdoor, file: None, no_deskew: true }.load().unwrap();
+    let config = Tuning { preset: Preset::Outdoor, file: None, no_deskew: true, method: None }.load().unwrap();
     let options = pipeline::recording_options(None, &config);
     let mut odometry = Odometry::new(config.clone()).unwrap();
     let by_hand = Trajectory {

@@ -11,6 +11,7 @@ pub mod sim;
 use std::path::PathBuf;
 
 use cloud::Preset;
+use edge::odometry::Method;
 use edge::odometry::pipeline::Tuning;
 use edge::source::SourceSpec;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -28,11 +29,15 @@ pub struct TuningArgs {
     /// Turn motion compensation off: for recordings published already compensated (KITTI's).
     #[arg(long)]
     no_deskew: bool,
+    /// Odometry: floam (scan-to-map every sweep) or aloam (scan-to-scan every sweep, scan-to-map
+    /// every `aloam.map_every` sweeps) [default: the configuration's, floam].
+    #[arg(long)]
+    method: Option<Method>,
 }
 
 impl From<&TuningArgs> for Tuning {
     fn from(args: &TuningArgs) -> Self {
-        Tuning { preset: args.preset, file: args.config.clone(), no_deskew: args.no_deskew }
+        Tuning { preset: args.preset, file: args.config.clone(), no_deskew: args.no_deskew, method: args.method }
     }
 }
 

@@ -147,6 +147,8 @@ pub struct NodeSummary {
     pub keyframe_poses: Vec<Isometry3<f64>>,
     /// Each keyframe's pose in the newest pose graph (empty while no loop was closed).
     pub optimised_keyframes: Vec<Isometry3<f64>>,
+    /// Wall time of the odometry on each scan, milliseconds (loop closure and publishing apart).
+    pub odometry_ms: Vec<f64>,
 }
 
 impl NodeSummary {
@@ -404,6 +406,7 @@ impl<'l> Outbox<'l> {
         s.poses.push(scan.pose);
         s.stamps.push(scan.stamp);
         s.ground_truth.push(scan.ground_truth);
+        s.odometry_ms.push(scan.odometry_ms);
         if let Some(kf) = scan.keyframe {
             s.keyframe_poses.push(scan.pose);
             self.publish(kf).await?;

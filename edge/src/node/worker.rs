@@ -4,6 +4,7 @@
 
 use std::time::{Duration, Instant};
 
+use cloud::stopwatch::Stopwatch;
 use nalgebra::Isometry3;
 use prost::Message;
 use proto::Fleet;
@@ -32,6 +33,8 @@ pub(crate) struct Registered {
     pub keyframe: Option<EncodedKeyframe>,
     /// The pose graph, when the keyframe's loop re-optimised it.
     pub posegraph: Option<EncodedPoseGraph>,
+    /// Wall time of the odometry on this scan, milliseconds.
+    pub odometry_ms: f64,
 }
 
 /// A `emr.v1.PoseGraphUpdate` protobuf encoding.
@@ -112,10 +115,12 @@ impl Worker {
     /// Odometry on one scan, and its keyframe's message if it made one (with the pose graph's when
     /// the keyframe closed a loop that changed it).
     fn register(&mut self, scan: SourceScan) -> Result<Registered, NodeError> {
+        let watch = Stopwatch::start();
         let frame = self
             .odometry
             .register(&scan.cloud, scan.stamp)
             .map_err(|source| NodeError::Odometry { index: scan.index, source })?;
+        let odometry_ms = watch.elapsed_ms();
         let (mut keyframe, mut posegraph) = (None, None);
         if let Some(kf) = &frame.keyframe {
             let (context, optimised) = match &mut self.loops {
@@ -136,7 +141,14 @@ impl Worker {
                 });
             }
         }
-        Ok(Registered { pose: frame.pose, stamp: scan.stamp, ground_truth: scan.ground_truth, keyframe, posegraph })
+        Ok(Registered {
+            pose: frame.pose,
+            stamp: scan.stamp,
+            ground_truth: scan.ground_truth,
+            keyframe,
+            posegraph,
+            odometry_ms,
+        })
     }
 
     fn encode(&self, kf: &Keyframe, stamp: f64, context: &ScanContext) -> Result<EncodedKeyframe, NodeError> {

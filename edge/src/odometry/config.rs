@@ -7,6 +7,7 @@
 use cloud::Preset;
 use serde::{Deserialize, Serialize};
 
+pub use super::aloam::{AloamConfig, Method};
 pub use super::coarse::CoarseConfig;
 pub use super::health::HealthConfig;
 pub use super::motion_model::MotionModelConfig;
@@ -207,6 +208,11 @@ impl Default for KeyframeConfig {
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct OdometryConfig {
+    /// The odometry: `"floam"` (the default) or `"aloam"` ([`super::aloam`]: scan-to-scan every
+    /// sweep, scan-to-map every `aloam.map_every` sweeps, linear deskewing).
+    pub method: Method,
+    /// A-LOAM's parameters, used with `method = "aloam"`.
+    pub aloam: AloamConfig,
     /// Sweep duration (s): point times divided by it give sweep phases. Default 0.1 s (10 Hz).
     pub scan_period: f32,
     /// Feature extraction.
@@ -266,6 +272,8 @@ impl OdometryConfig {
     /// roll on sloped ground (30° and 60° measure alike today; the README has both).
     pub fn indoor() -> Self {
         OdometryConfig {
+            method: Method::Floam,
+            aloam: AloamConfig::default(),
             scan_period: 0.1,
             // Ten edges per sector, not F-LOAM's twenty: as accurate in the warehouse, and faster.
             // Points nearer than 2 m are the lowest rings on rack feet, box bottoms and steps:

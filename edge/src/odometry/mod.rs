@@ -17,12 +17,17 @@
 //! 5. local map: edge and plane voxel maps cropped around the robot, k-d trees ([`local_map`]);
 //! 6. keyframes every N metres or M degrees, carrying the deskewed, downsampled cloud.
 //!
+//! With `method = "aloam"` the scans go through A-LOAM instead ([`aloam`]: scan-to-scan odometry
+//! every sweep, scan-to-map refinement at a lower rate, linear deskewing), for the paper's
+//! MR-ALOAM and EMR-ALOAM comparisons.
+//!
 //! Every parameter and the presets are in [`config`]; [`pipeline`] runs the odometry over a source,
 //! evaluates it against ground truth and writes the results.
 //!
 //! Poses are those of the sensor at the END of each sweep, in the odometry frame (the sensor frame at
 //! the end of the first sweep).
 
+pub mod aloam;
 pub mod coarse;
 pub mod config;
 pub mod deskew;
@@ -40,7 +45,7 @@ use cloud::stopwatch::{Stopwatch, millis, timed};
 use nalgebra::{Isometry3, Point3};
 use serde::Serialize;
 
-pub use config::{FeatureConfig, KeyframeConfig, MapConfig, OdometryConfig, SolverConfig};
+pub use config::{FeatureConfig, KeyframeConfig, MapConfig, Method, OdometryConfig, SolverConfig};
 use deskew::SweepMotion;
 use features::{FeatureError, Features};
 use health::Health;
@@ -201,7 +206,7 @@ pub enum OdometryError {
     Config(String),
 }
 
-/// The F-LOAM odometry state of one robot.
+/// The odometry state of one robot: F-LOAM, or A-LOAM ([`aloam`]) with `method = "aloam"`.
 pub struct Odometry {
     config: OdometryConfig,
     frames: usize,
@@ -222,6 +227,8 @@ pub struct Odometry {
     since_reset: usize,
     /// The first scan's features, until the second scan measured the motion they were taken in.
     first: Option<Features>,
+    /// A-LOAM's state, used with [`Method::Aloam`].
+    aloam: aloam::AloamState,
 }
 
 impl Odometry {
@@ -246,7 +253,9 @@ impl Odometry {
                 )));
             }
         }
+        config.aloam.check()?;
         Ok(Odometry {
+            aloam: aloam::AloamState::new(),
             edge_map: FeatureMap::new(config.edge_map.clone()),
             plane_map: FeatureMap::new(config.plane_map.clone()),
             frames: 0,
@@ -298,6 +307,9 @@ impl Odometry {
 
     /// [`Odometry::register`] on a worker of rayon's pool.
     fn register_on_pool(&mut self, scan: &PointCloud) -> Result<Frame, OdometryError> {
+        if self.config.method == Method::Aloam {
+            return self.register_aloam(scan);
+        }
         let mut watch = Stopwatch::start();
         let (raw, feature_kind) = features::extract_any(scan, self.config.scan_period, &self.config.features)?;
         let features_ms = watch.lap_ms();

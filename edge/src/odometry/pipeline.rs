@@ -20,7 +20,7 @@ use serde::Serialize;
 
 use super::config::OverlayError;
 use super::stats::{RunStats, RunSummary};
-use super::{Frame, Odometry, OdometryConfig, OdometryError};
+use super::{Frame, Method, Odometry, OdometryConfig, OdometryError};
 use crate::loops::LoopError;
 use crate::loops::track::{LoopSummary, LoopTrack};
 use crate::memory::{MemoryTrace, MemoryWatch, peak_rss_mb};
@@ -75,11 +75,13 @@ pub struct Tuning {
     pub file: Option<PathBuf>,
     /// Motion compensation off, for recordings published already compensated. Default false.
     pub no_deskew: bool,
+    /// The odometry method, replacing the file's and the preset's. Default none (keep theirs).
+    pub method: Option<Method>,
 }
 
 impl Default for Tuning {
     fn default() -> Self {
-        Tuning { preset: Preset::Indoor, file: None, no_deskew: false }
+        Tuning { preset: Preset::Indoor, file: None, no_deskew: false, method: None }
     }
 }
 
@@ -97,6 +99,9 @@ impl Tuning {
         }
         if self.no_deskew {
             config.deskew = false;
+        }
+        if let Some(method) = self.method {
+            config.method = method;
         }
         Ok(config)
     }
