@@ -112,7 +112,13 @@ async fn a_foxglove_client_receives_the_global_map() {
     let station = Station::start(station_session, config).await.unwrap();
 
     for robot in [1, 2] {
-        let publisher = robot_session.declare_publisher(keyexpr::keyframe(&fleet, robot)).await.unwrap();
+        // Block, as the edges publish: under load zenoh's default (drop) loses keyframes, and this
+        // robot has no queryable the station could backfill them from.
+        let publisher = robot_session
+            .declare_publisher(keyexpr::keyframe(&fleet, robot))
+            .congestion_control(zenoh::qos::CongestionControl::Block)
+            .await
+            .unwrap();
         while !publisher.matching_status().await.unwrap().matching() {
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
