@@ -168,18 +168,6 @@ struct Extracted {
     kind: features::FeatureKind,
 }
 
-/// The identity as an estimate: the first sweep defines the odometry frame.
-fn first_estimate() -> solver::Estimate {
-    solver::Estimate {
-        pose: Isometry3::identity(),
-        iterations: 0,
-        edge_matches: 0,
-        plane_matches: 0,
-        degenerate_directions: 0,
-        min_eigen_ratio: 1.0,
-    }
-}
-
 impl Odometry {
     /// One sweep of A-LOAM (see the module's documentation).
     pub(super) fn register_aloam(&mut self, scan: &PointCloud) -> Result<Frame, OdometryError> {
@@ -245,10 +233,10 @@ impl Odometry {
     /// Scan-to-scan odometry (LOAM section V, Algorithm 1): the motion since the last sweep end,
     /// from the constant-velocity guess; the identity for the first sweep.
     fn scan_to_scan(&self, raw: &Features) -> (Isometry3<f64>, solver::Estimate) {
-        let Some(previous) = &self.aloam.previous else { return (Isometry3::identity(), first_estimate()) };
+        let Some(previous) = &self.aloam.previous else { return (Isometry3::identity(), solver::Estimate::first()) };
         let mut guess = cloud::se3::exp(&(self.motion.0 * self.sweeps));
         let mut searches = solver::Neighbourhoods::new(raw.edges.len(), raw.planes.len());
-        let mut estimate = first_estimate();
+        let mut estimate = solver::Estimate::first();
         // Two rounds, each deskewing with the current estimate (eq. 4), as A-LOAM's two
         // optimisation rounds; eqs. 2, 3 and 9 are the solver's residuals.
         for _ in 0..2 {

@@ -353,14 +353,7 @@ impl Odometry {
     /// odometry frame.
     fn locate(&self, raw: &Features) -> Located {
         if self.frames == 0 {
-            let estimate = solver::Estimate {
-                pose: Isometry3::identity(),
-                iterations: 0,
-                edge_matches: 0,
-                plane_matches: 0,
-                degenerate_directions: 0,
-                min_eigen_ratio: 1.0,
-            };
+            let estimate = solver::Estimate::first();
             return Located { estimate, predicted: Isometry3::identity(), start: Start::Prediction, lost: false };
         }
         let predicted = self.pose * cloud::se3::exp(&(self.motion.0 * self.sweeps));

@@ -37,6 +37,20 @@ pub struct Estimate {
     pub min_eigen_ratio: f64,
 }
 
+impl Estimate {
+    /// The identity, fitted from nothing: the first sweep defines the odometry frame.
+    pub fn first() -> Self {
+        Estimate {
+            pose: Isometry3::identity(),
+            iterations: 0,
+            edge_matches: 0,
+            plane_matches: 0,
+            degenerate_directions: 0,
+            min_eigen_ratio: 1.0,
+        }
+    }
+}
+
 /// Map points fetched per search beyond the k a fit uses: they let later iterations, after the
 /// pose has moved, find the new k nearest without searching the map again (see [`Searched`]).
 const SPARE_CANDIDATES: usize = 3;
