@@ -145,7 +145,7 @@ impl Row {
             scenario: scenario.to_owned(),
             system,
             median_scan_ms: Spread::of(&all_ms).median,
-            map_points: demo.global_map.cloud.as_ref().map_or(0, |c| u64::from(c.points)),
+            map_points: demo.global_map.cloud.as_ref().map_or(0, |c| c.points),
             map_bytes: demo.global_map.encoded_len(),
             merges: demo.merge_ms.len(),
             last_merge_ms: demo.merge_ms.last().copied().unwrap_or(f64::NAN),
