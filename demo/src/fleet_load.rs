@@ -5,20 +5,37 @@
 //! its own zenoh session, peers on loopback. The keyframes are simulated scans at their true poses,
 //! made before the clock starts so that only the station is measured. Robots beyond the scenario's
 //! own replay its robots from later in their runs.
+//!
+//! An observer on a session of its own watches the station throughout: when each keyframe arrived
+//! (the station's progress: a robot's count of keyframes held first reaching k) and when each
+//! published global map was received (its placements count the keyframes it was built from), which
+//! gives each keyframe's latency from arrival to the first published map holding it.
 
+use std::collections::BTreeMap;
+use std::fmt;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
+use edge::memory::{peak_rss_mb, rss_mb};
 use edge::odometry::Keyframe;
+use edge::odometry::stats::Spread;
 use edge::wire::keyframe_message;
 use prost::Message;
 use proto::codec::CodecConfig;
-use proto::{Fleet, keyexpr};
+use proto::{Fleet, GlobalMap, keyexpr};
 use rayon::prelude::*;
 use serde::Serialize;
 use sim::{Scenario, SimConfig, Simulator};
 use station::service::{Station, StationConfig, StationError, StationProgress};
-use tokio::sync::watch;
+use tokio::sync::{oneshot, watch};
+use tracing::{info, warn};
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::Subscriber;
+use zenoh::sample::Sample;
+
+/// How long the observer waits for the last global map once the station has published it.
+const GRACE: Duration = Duration::from_secs(10);
 
 /// What the benchmark does.
 #[derive(Clone, Debug)]
@@ -50,6 +67,27 @@ impl LoadConfig {
             station: StationConfig { debounce: Duration::from_secs(1), ..StationConfig::new(fleet) },
         }
     }
+
+    /// Keyframes each robot publishes (`seconds × rate_hz`, rounded), or why the load is invalid.
+    pub fn keyframes_per_robot(&self) -> Result<usize, LoadError> {
+        let invalid = |what: String| Err(LoadError::Invalid(what));
+        if self.robots == 0 {
+            return invalid("robots must be at least 1, got 0".into());
+        }
+        // Zero for a rate that is not positive (no period), not a number or too high (none between ticks).
+        let period = Duration::try_from_secs_f64(1.0 / self.rate_hz).unwrap_or_default();
+        if period.is_zero() {
+            return invalid(format!("rate_hz must be a positive number of keyframes per second, got {}", self.rate_hz));
+        }
+        let per_robot = (self.seconds * self.rate_hz).round();
+        if !per_robot.is_finite() || per_robot < 1.0 {
+            return invalid(format!(
+                "seconds × rate_hz must make at least one keyframe per robot, got {} s × {} Hz",
+                self.seconds, self.rate_hz
+            ));
+        }
+        Ok(per_robot as usize)
+    }
 }
 
 impl Default for LoadConfig {
@@ -64,7 +102,9 @@ pub struct LoadReport {
     /// Robots.
     pub robots: usize,
     /// Keyframes published over all robots.
-    pub published: u64,
+    pub sent: u64,
+    /// Keyframes the station held at the end.
+    pub received: u64,
     /// Mean keyframe payload, bytes.
     pub mean_payload_bytes: f64,
     /// Keyframes the station received per second while the robots published.
@@ -72,22 +112,60 @@ pub struct LoadReport {
     /// Most keyframes published but not yet taken in by the station at any sample (every 50 ms).
     pub max_backlog: u64,
     /// Merge jobs waiting at most (coalesced: never above 1).
-    pub max_queue_depth: u32,
+    pub queue_max: u32,
     /// Merges run while publishing and until caught up.
     pub merges: usize,
-    /// Merge wall time, milliseconds: median and max.
-    pub merge_ms_median: f64,
-    /// Longest merge.
-    pub merge_ms_max: f64,
+    /// Merge wall time, milliseconds (`None` without merges).
+    pub merge_ms: Option<Percentiles>,
+    /// Per keyframe, from its arrival at the station to the first published global map holding it,
+    /// milliseconds (`None` when no keyframe was in a map).
+    pub latency_ms: Option<Percentiles>,
+    /// Keyframes the station received that no published global map held.
+    pub unmapped: u64,
     /// From the last keyframe published to a published global map holding every keyframe, seconds.
     pub catch_up_s: f64,
     /// Robots merged in the final map.
-    pub merged: usize,
+    pub merged_robots: usize,
+    /// Resident memory of the process.
+    pub rss_mb: Rss,
+}
+
+/// Nearest-rank percentiles of a series.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Percentiles {
+    /// Median.
+    pub p50: f64,
+    /// 95th percentile.
+    pub p95: f64,
+    /// Maximum.
+    pub max: f64,
+}
+
+impl Percentiles {
+    /// Those of `values`; `None` when there are none.
+    pub fn of(values: &[f64]) -> Option<Self> {
+        let Spread { median, p95, max } = Spread::of(values);
+        (!values.is_empty()).then_some(Percentiles { p50: median, p95, max })
+    }
+}
+
+/// Resident memory of the process (Linux `/proc/self/status`), MB; `None` where it cannot be read.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Rss {
+    /// `VmRSS` with the payloads prepared and the station started, before publishing.
+    pub start: Option<f64>,
+    /// `VmRSS` once the station has caught up, before it stops.
+    pub end: Option<f64>,
+    /// `VmHWM`, the peak, at the end.
+    pub peak: Option<f64>,
 }
 
 /// Why the benchmark failed.
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
+    /// A setting out of range.
+    #[error("invalid load: {0}")]
+    Invalid(String),
     /// Simulation or encoding.
     #[error("preparing keyframes: {0}")]
     Prepare(String),
@@ -101,66 +179,109 @@ pub enum LoadError {
 
 /// Runs the benchmark.
 pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
-    let per_robot = (config.seconds * config.rate_hz).round() as usize;
+    let per_robot = config.keyframes_per_robot()?;
+    info!("preparing {per_robot} keyframes for each of {} robots", config.robots);
     let payloads = tokio::task::spawn_blocking({
         let config = config.clone();
         move || prepare(&config, per_robot)
     })
     .await
     .map_err(|e| LoadError::Prepare(e.to_string()))??;
-    let port = bus::free_port().map_err(|e| LoadError::Network(e.to_string()))?;
-    let station_session = open(&bus::Network::loopback_ports(&[port], &[])).await?;
-    let station = Station::start(station_session, config.station.clone()).await?;
-    let mut sessions = Vec::new();
-    for _ in 0..config.robots {
-        sessions.push(open(&bus::Network::loopback_ports(&[], &[port])).await?);
-    }
-    let published = Arc::new(std::sync::atomic::AtomicU64::new(0));
-    let stop_sampling = Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let sampler = tokio::spawn(sample(station.progress(), Arc::clone(&published), Arc::clone(&stop_sampling)));
-    let started = Instant::now();
-    let mut robots = Vec::new();
-    for (i, (session, robot_payloads)) in sessions.into_iter().zip(payloads.clone()).enumerate() {
-        let key = keyexpr::keyframe(&config.station.fleet, i as u32 + 1);
-        robots.push(tokio::spawn(publish(session, key, robot_payloads, config.rate_hz, Arc::clone(&published))));
-    }
-    for r in robots {
-        r.await.map_err(|e| LoadError::Network(e.to_string()))??;
-    }
-    let publishing = started.elapsed();
-    let total = published.load(std::sync::atomic::Ordering::Relaxed);
-    let mut progress = station.progress();
+    let bytes: usize = payloads.iter().flatten().map(Vec::len).sum();
+    let rig = Rig::start(&config).await?;
+    let published = Arc::new(AtomicU64::new(0));
+    let (stop, stopped) = oneshot::channel();
+    let observer = tokio::spawn(observe(rig.station.progress(), rig.maps, Arc::clone(&published), stopped));
+    let rss_start = rss_mb();
+    info!("publishing for {} s", config.seconds);
+    let publishing = publish_all(rig.robots, payloads, &config, &published).await?;
+    let sent = published.load(Ordering::Relaxed);
+    let mut progress = rig.station.progress();
     let received_during = progress.borrow().total_keyframes() as f64;
+    info!("published {sent} keyframes; waiting for the station to catch up");
     let caught_up = Instant::now();
-    let _ = progress.wait_for(|p| p.total_keyframes() as u64 == total && p.up_to_date()).await;
-    let catch_up = caught_up.elapsed();
-    stop_sampling.store(true, std::sync::atomic::Ordering::Relaxed);
-    let (max_backlog, max_queue_depth) = sampler.await.unwrap_or_default();
-    let summary = station.stop().await?;
-    let mut ms = summary.merge_ms.clone();
-    ms.sort_by(f64::total_cmp);
-    let merged = summary
+    let _ = progress.wait_for(|p| p.total_keyframes() as u64 == sent && p.up_to_date()).await;
+    let catch_up_s = caught_up.elapsed().as_secs_f64();
+    let rss_mb = Rss { start: rss_start, end: rss_mb(), peak: peak_rss_mb() };
+    let _ = stop.send(progress.borrow().revision);
+    let observed = observer.await.map_err(|e| LoadError::Network(e.to_string()))?;
+    let summary = rig.station.stop().await?;
+    let merged_robots = summary
         .global_map
         .as_ref()
         .map_or(0, |m| m.robots.iter().filter(|r| r.status() == proto::MergeStatus::Merged).count());
-    let bytes: usize = payloads.iter().flatten().map(Vec::len).sum();
     Ok(LoadReport {
         robots: config.robots,
-        published: total,
-        mean_payload_bytes: bytes as f64 / total.max(1) as f64,
+        sent,
+        received: summary.keyframes.values().sum::<usize>() as u64,
+        mean_payload_bytes: bytes as f64 / sent.max(1) as f64,
         received_per_s: received_during / publishing.as_secs_f64(),
-        max_backlog,
-        max_queue_depth,
-        merges: ms.len(),
-        merge_ms_median: ms.get(ms.len() / 2).copied().unwrap_or(0.0),
-        merge_ms_max: ms.last().copied().unwrap_or(0.0),
-        catch_up_s: catch_up.as_secs_f64(),
-        merged,
+        max_backlog: observed.max_backlog,
+        queue_max: observed.queue_max,
+        merges: summary.merge_ms.len(),
+        merge_ms: Percentiles::of(&summary.merge_ms),
+        latency_ms: Percentiles::of(&observed.latencies.ms),
+        unmapped: observed.latencies.unmapped(),
+        catch_up_s,
+        merged_robots,
+        rss_mb,
     })
+}
+
+/// The station, the robots' sessions and the observer's subscription to the global maps, each
+/// robot and the observer on a session of its own connected to the station's port.
+struct Rig {
+    /// The station, listening on the port.
+    station: Station,
+    /// One session per robot.
+    robots: Vec<zenoh::Session>,
+    /// Kept open for `maps`.
+    _observer: zenoh::Session,
+    /// The observer's subscription to the fleet's global maps.
+    maps: Subscriber<FifoChannelHandler<Sample>>,
+}
+
+impl Rig {
+    /// Starts the station on a free loopback port and connects the robots and the observer to it.
+    async fn start(config: &LoadConfig) -> Result<Rig, LoadError> {
+        let port = bus::free_port().map_err(|e| LoadError::Network(e.to_string()))?;
+        let station_session = open(&bus::Network::loopback_ports(&[port], &[])).await?;
+        let station = Station::start(station_session, config.station.clone()).await?;
+        let mut robots = Vec::new();
+        for _ in 0..config.robots {
+            robots.push(open(&bus::Network::loopback_ports(&[], &[port])).await?);
+        }
+        let observer = open(&bus::Network::loopback_ports(&[], &[port])).await?;
+        let maps = observer
+            .declare_subscriber(keyexpr::global_map(&config.station.fleet))
+            .await
+            .map_err(|e| LoadError::Network(e.to_string()))?;
+        Ok(Rig { station, robots, _observer: observer, maps })
+    }
 }
 
 async fn open(network: &bus::Network) -> Result<zenoh::Session, LoadError> {
     network.open().await.map_err(|e| LoadError::Network(e.to_string()))
+}
+
+/// Every robot publishes its payloads on its session at the configured rate; returns how long
+/// that took.
+async fn publish_all(
+    sessions: Vec<zenoh::Session>,
+    payloads: Vec<Vec<Vec<u8>>>,
+    config: &LoadConfig,
+    published: &Arc<AtomicU64>,
+) -> Result<Duration, LoadError> {
+    let started = Instant::now();
+    let mut robots = Vec::new();
+    for (i, (session, robot_payloads)) in sessions.into_iter().zip(payloads).enumerate() {
+        let key = keyexpr::keyframe(&config.station.fleet, i as u32 + 1);
+        robots.push(tokio::spawn(publish(session, key, robot_payloads, config.rate_hz, Arc::clone(published))));
+    }
+    for r in robots {
+        r.await.map_err(|e| LoadError::Network(e.to_string()))??;
+    }
+    Ok(started.elapsed())
 }
 
 /// Every robot's keyframe payloads, in order: simulated scans at their true poses (relative to
@@ -198,7 +319,7 @@ async fn publish(
     key: String,
     payloads: Vec<Vec<u8>>,
     rate_hz: f64,
-    published: Arc<std::sync::atomic::AtomicU64>,
+    published: Arc<AtomicU64>,
 ) -> Result<(), LoadError> {
     let publisher = session
         .declare_publisher(key)
@@ -213,26 +334,214 @@ async fn publish(
     for p in payloads {
         tick.tick().await;
         publisher.put(p).await.map_err(|e| LoadError::Network(e.to_string()))?;
-        published.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        published.fetch_add(1, Ordering::Relaxed);
     }
     Ok(())
 }
 
-/// Samples the backlog (published minus received) and the merge queue every 50 ms.
-async fn sample(
-    progress: watch::Receiver<StationProgress>,
-    published: Arc<std::sync::atomic::AtomicU64>,
-    stop: Arc<std::sync::atomic::AtomicBool>,
-) -> (u64, u32) {
-    let (mut backlog, mut depth) = (0u64, 0u32);
-    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
-        {
-            let p = progress.borrow();
-            let sent = published.load(std::sync::atomic::Ordering::Relaxed);
-            backlog = backlog.max(sent.saturating_sub(p.total_keyframes() as u64));
-            depth = depth.max(u32::from(p.merge_pending));
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
+/// What the observer saw.
+#[derive(Debug, Default)]
+struct Observed {
+    /// Arrivals, maps and the latencies they give.
+    latencies: Latencies,
+    /// Most keyframes published but not yet held at a sample.
+    max_backlog: u64,
+    /// Merge jobs waiting at most.
+    queue_max: u32,
+}
+
+impl Observed {
+    /// A change of the station's progress, seen at `at`.
+    fn progress(&mut self, p: &StationProgress, at: Instant) {
+        self.queue_max = self.queue_max.max(u32::from(p.merge_pending));
+        self.latencies.arrived(&p.keyframes, at);
     }
-    (backlog, depth)
+
+    /// A backlog sample: keyframes published but not yet held.
+    fn backlog(&mut self, sent: u64, p: &StationProgress) {
+        self.max_backlog = self.max_backlog.max(sent.saturating_sub(p.total_keyframes() as u64));
+    }
+}
+
+/// Watches the station until it has received the global map whose revision comes through `stop`
+/// (sent once the station has caught up), or [`GRACE`] after that: keyframe arrivals and the merge
+/// queue on every change of progress, published maps for the latencies, the backlog every 50 ms.
+async fn observe(
+    mut progress: watch::Receiver<StationProgress>,
+    maps: Subscriber<FifoChannelHandler<Sample>>,
+    published: Arc<AtomicU64>,
+    mut stop: oneshot::Receiver<u64>,
+) -> Observed {
+    let mut seen = Observed::default();
+    let mut tick = tokio::time::interval(Duration::from_millis(50));
+    let mut last: Option<(u64, tokio::time::Instant)> = None;
+    loop {
+        if last.is_some_and(|(revision, _)| seen.latencies.revision >= revision) {
+            break;
+        }
+        let deadline = last.map_or_else(tokio::time::Instant::now, |(_, d)| d);
+        tokio::select! {
+            Ok(()) = progress.changed() => seen.progress(&progress.borrow_and_update(), Instant::now()),
+            Ok(sample) = maps.recv_async() => {
+                let at = Instant::now();
+                seen.progress(&progress.borrow_and_update(), at);
+                match GlobalMap::decode(&*sample.payload().to_bytes()) {
+                    Ok(map) => seen.latencies.mapped(&map, at),
+                    Err(e) => warn!("cannot decode a global map: {e}"),
+                }
+            }
+            _ = tick.tick() => seen.backlog(published.load(Ordering::Relaxed), &progress.borrow()),
+            // A dropped sender (the run failed) stops at once.
+            revision = &mut stop, if last.is_none() => {
+                last = Some((revision.unwrap_or(0), tokio::time::Instant::now() + GRACE));
+            }
+            () = tokio::time::sleep_until(deadline), if last.is_some() => {
+                warn!("the last global map did not arrive within {GRACE:?}");
+                break;
+            }
+        }
+    }
+    seen
+}
+
+/// Each keyframe's latency from its arrival at the station to the first published map holding it.
+///
+/// Counts only grow, so the k-th keyframe of a robot arrived when its count first reached k, and a
+/// map whose placement of the robot counts n keyframes holds its first n.
+#[derive(Debug, Default)]
+struct Latencies {
+    /// Per robot, when its count of keyframes held first reached 1, 2, ...
+    arrived: BTreeMap<u32, Vec<Instant>>,
+    /// Per robot, how many of its first keyframes a received map has held.
+    mapped: BTreeMap<u32, usize>,
+    /// The latencies credited so far, milliseconds.
+    ms: Vec<f64>,
+    /// Newest revision received.
+    revision: u64,
+}
+
+impl Latencies {
+    /// Counts of keyframes held per robot, seen at `at`.
+    fn arrived(&mut self, held: &BTreeMap<u32, usize>, at: Instant) {
+        for (&robot, &count) in held {
+            let times = self.arrived.entry(robot).or_default();
+            if count > times.len() {
+                times.resize(count, at);
+            }
+        }
+    }
+
+    /// A published map, received at `at`: credits the keyframes it is the first to hold.
+    fn mapped(&mut self, map: &GlobalMap, at: Instant) {
+        for placement in &map.robots {
+            let times = self.arrived.get(&placement.robot).map_or(&[][..], Vec::as_slice);
+            let held = (placement.keyframes as usize).min(times.len());
+            let done = self.mapped.entry(placement.robot).or_default();
+            for &t in times.get(*done..held).unwrap_or_default() {
+                self.ms.push(cloud::stopwatch::millis(at - t));
+            }
+            *done = held.max(*done);
+        }
+        self.revision = self.revision.max(map.revision);
+    }
+
+    /// Keyframes that arrived but no received map held.
+    fn unmapped(&self) -> u64 {
+        let arrived: usize = self.arrived.values().map(Vec::len).sum();
+        (arrived - self.mapped.values().sum::<usize>()) as u64
+    }
+}
+
+impl fmt::Display for LoadReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "{} robots sent {} keyframes ({:.1} kB mean); the station holds {} ({:.1} per s while \
+             publishing, backlog at most {})",
+            self.robots,
+            self.sent,
+            self.mean_payload_bytes / 1e3,
+            self.received,
+            self.received_per_s,
+            self.max_backlog
+        )?;
+        writeln!(
+            f,
+            "{} merges, {}; merge queue at most {}; {} robots merged",
+            self.merges,
+            spread(self.merge_ms),
+            self.queue_max,
+            self.merged_robots
+        )?;
+        writeln!(
+            f,
+            "latency from arrival to the first published map holding it: {}; {} keyframes in no map; \
+             caught up {:.2} s after the last keyframe",
+            spread(self.latency_ms),
+            self.unmapped,
+            self.catch_up_s
+        )?;
+        let mb = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.0} MB"));
+        write!(
+            f,
+            "resident memory: {} at start, {} at end, {} peak",
+            mb(self.rss_mb.start),
+            mb(self.rss_mb.end),
+            mb(self.rss_mb.peak)
+        )
+    }
+}
+
+/// `p50 … / p95 … / max … ms`, or `none`.
+fn spread(p: Option<Percentiles>) -> String {
+    p.map_or("none".into(), |p| format!("p50 {:.0} / p95 {:.0} / max {:.0} ms", p.p50, p.p95, p.max))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proto::RobotPlacement;
+
+    fn map(revision: u64, placements: &[(u32, u64)]) -> GlobalMap {
+        let robots =
+            placements.iter().map(|&(robot, keyframes)| RobotPlacement { robot, keyframes, ..Default::default() });
+        GlobalMap { revision, robots: robots.collect(), ..Default::default() }
+    }
+
+    #[test]
+    fn each_keyframe_is_credited_once_to_the_first_map_holding_it() {
+        let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        let mut l = Latencies::default();
+        l.arrived(&BTreeMap::from([(1, 2), (2, 1)]), at(0));
+        l.arrived(&BTreeMap::from([(1, 3), (2, 1)]), at(100));
+        l.mapped(&map(1, &[(1, 2), (2, 0)]), at(1000));
+        assert_eq!(l.ms, [1000.0, 1000.0]);
+        assert_eq!(l.unmapped(), 2);
+        l.mapped(&map(2, &[(1, 3), (2, 1)]), at(2000));
+        assert_eq!(l.ms, [1000.0, 1000.0, 1900.0, 2000.0]);
+        assert_eq!((l.unmapped(), l.revision), (0, 2));
+    }
+
+    #[test]
+    fn percentiles_are_nearest_rank_and_none_when_empty() {
+        let v: Vec<f64> = (1..=20).map(f64::from).collect();
+        assert_eq!(Percentiles::of(&v), Some(Percentiles { p50: 10.0, p95: 19.0, max: 20.0 }));
+        assert_eq!(Percentiles::of(&[]), None);
+    }
+
+    #[test]
+    fn a_load_without_keyframes_is_invalid() {
+        let ok = LoadConfig { robots: 2, rate_hz: 5.0, seconds: 3.0, ..LoadConfig::new() };
+        assert_eq!(ok.keyframes_per_robot().unwrap(), 15);
+        for bad in [
+            LoadConfig { robots: 0, ..ok.clone() },
+            LoadConfig { rate_hz: 0.0, ..ok.clone() },
+            LoadConfig { rate_hz: f64::NAN, ..ok.clone() },
+            LoadConfig { seconds: -1.0, ..ok.clone() },
+            LoadConfig { seconds: 0.01, ..ok.clone() },
+        ] {
+            assert!(matches!(bad.keyframes_per_robot(), Err(LoadError::Invalid(_))), "{bad:?}");
+        }
+    }
 }

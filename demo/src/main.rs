@@ -82,22 +82,33 @@ struct RunArgs {
 #[derive(Subcommand, Debug)]
 enum Bench {
     /// A station under a simulated fleet: ROBOTS robots each publish a keyframe per scan at
-    /// RATE_HZ (simulated scans at true poses, prepared before the clock starts) to an in-process
-    /// station over loopback. Prints keyframes received per second, the largest backlog, merge
-    /// times and how long the station takes to catch up, as JSON.
+    /// RATE_HZ for SECONDS (simulated scans at true poses, prepared before the clock starts) to an
+    /// in-process station over loopback; when they are done the station catches up.
+    ///
+    /// Prints keyframes sent and held, the station's intake per second and largest backlog, merges
+    /// and their times (p50 / p95 / max), each keyframe's latency from its arrival at the station
+    /// to the first published global map holding it (and how many no map held), the merge queue's
+    /// depth, the catch-up time and the process's resident memory (before publishing, at the end,
+    /// peak). Progress on stderr.
     Load {
-        /// Robots publishing.
+        /// Robots publishing (at least 1).
         #[arg(long, default_value_t = 8)]
         robots: usize,
-        /// Keyframes per second per robot.
+        /// Keyframes per second per robot (above 0).
         #[arg(long, default_value_t = 10.0)]
         rate_hz: f64,
-        /// Seconds of publishing.
+        /// Seconds of publishing; each robot sends SECONDS × RATE_HZ keyframes (rounded, at least 1).
         #[arg(long, default_value_t = 20.0)]
         seconds: f64,
-        /// Scenario the robots come from.
+        /// Scenario the robots come from (robots beyond its own replay them from later in their runs).
         #[arg(long, default_value = "campus")]
         scenario: String,
+        /// Print the figures as one JSON object on stdout's last line instead of text: robots, sent,
+        /// received, mean_payload_bytes, received_per_s, max_backlog, queue_max, merges, merge_ms
+        /// and latency_ms ({p50, p95, max}, nearest rank), unmapped, catch_up_s, merged_robots,
+        /// rss_mb ({start, end, peak}).
+        #[arg(long)]
+        json: bool,
     },
 }
 
@@ -108,10 +119,14 @@ fn main() -> Result<()> {
         None => run_demo(cli.run)?,
         Some(Command::Run(args)) => run_demo(args)?,
         Some(Command::Report(args)) => run_report(args)?,
-        Some(Command::Bench(Bench::Load { robots, rate_hz, seconds, scenario })) => {
+        Some(Command::Bench(Bench::Load { robots, rate_hz, seconds, scenario, json })) => {
             let config = LoadConfig { robots, rate_hz, seconds, scenario, ..LoadConfig::new() };
             let report = runtime()?.block_on(fleet_load::run(config))?;
-            println!("{}", serde_json::to_string_pretty(&report)?);
+            if json {
+                println!("{}", serde_json::to_string(&report)?);
+            } else {
+                println!("{report}");
+            }
         }
     }
     Ok(())
