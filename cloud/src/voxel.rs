@@ -87,6 +87,64 @@ pub fn downsample(cloud: &PointCloud, size: f32) -> Result<PointCloud, InvalidVo
     Ok(out)
 }
 
+/// A centroid-per-voxel grid that grows point by point: what [`downsample`] gives for the union of
+/// everything inserted (positions only; same voxels, same order, the same centroids up to the
+/// rounding of the running sums), without keeping or revisiting the inserted points.
+///
+/// A map that grows by a keyframe at a time costs the new keyframe's points, not the whole map.
+#[derive(Clone, Debug)]
+pub struct VoxelMap {
+    inv_size: f32,
+    slot: FxHashMap<VoxelKey, usize>,
+    /// Per voxel, in the order of its first point: the f64 sum of its points and their count.
+    sums: Vec<([f64; 3], u32)>,
+}
+
+impl VoxelMap {
+    /// An empty grid of cubic voxels of edge `size`.
+    pub fn new(size: f32) -> Result<Self, InvalidVoxelSize> {
+        if !(size > 0.0 && size.is_finite()) {
+            return Err(InvalidVoxelSize(size));
+        }
+        Ok(Self { inv_size: 1.0 / size, slot: FxHashMap::default(), sums: Vec::new() })
+    }
+
+    /// Adds `points`; non-finite points are skipped (they have no cell).
+    pub fn insert(&mut self, points: impl IntoIterator<Item = Point3<f32>>) {
+        for p in points.into_iter().filter(|p| p.coords.iter().all(|c| c.is_finite())) {
+            let next = self.sums.len();
+            let s = *self.slot.entry(VoxelKey::of(&p, self.inv_size)).or_insert(next);
+            if s == next {
+                self.sums.push(([0.0; 3], 0));
+            }
+            let (sum, count) = &mut self.sums[s];
+            sum[0] += f64::from(p.x);
+            sum[1] += f64::from(p.y);
+            sum[2] += f64::from(p.z);
+            *count += 1;
+        }
+    }
+
+    /// Occupied voxels.
+    pub fn len(&self) -> usize {
+        self.sums.len()
+    }
+
+    /// True when nothing was inserted.
+    pub fn is_empty(&self) -> bool {
+        self.sums.is_empty()
+    }
+
+    /// One point per occupied voxel, its centroid, in the order the voxels were first hit.
+    pub fn cloud(&self) -> PointCloud {
+        let centroid = |(sum, n): &([f64; 3], u32)| {
+            let n = f64::from(*n);
+            Point3::new((sum[0] / n) as f32, (sum[1] / n) as f32, (sum[2] / n) as f32)
+        };
+        PointCloud::from_points(self.sums.iter().map(centroid).collect())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -139,5 +197,29 @@ mod tests {
             assert!(downsample(&c, s).is_err());
         }
         assert!(downsample(&c, 0.1).unwrap().is_empty());
+    }
+
+    #[test]
+    fn voxel_map_fed_in_parts_equals_downsampling_the_union() {
+        let mut rng = testkit::Rng::new(17);
+        let mut rand = move || rng.f32();
+        let parts: Vec<Vec<Point3<f32>>> = (0..5)
+            .map(|k| {
+                (0..3000).map(|_| Point3::new(rand() * 20.0 + k as f32, rand() * 20.0 - 10.0, rand() * 3.0)).collect()
+            })
+            .collect();
+        let mut map = VoxelMap::new(0.4).unwrap();
+        for part in &parts {
+            map.insert(part.iter().copied());
+        }
+        map.insert([Point3::new(f32::NAN, 0.0, 0.0)]);
+        let union = PointCloud::from_points(parts.concat());
+        let whole = downsample(&union, 0.4).unwrap();
+        assert_eq!(map.len(), whole.len());
+        let grown = map.cloud();
+        for (a, b) in grown.points.iter().zip(&whole.points) {
+            assert!((a - b).norm() < 1e-5, "{a} vs {b}");
+        }
+        assert!(VoxelMap::new(0.0).is_err());
     }
 }

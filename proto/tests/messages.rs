@@ -73,6 +73,7 @@ fn global_map_round_trips() {
         edges: vec![MergeEdge { robot_a: 1, robot_b: 2, transform: Some(pose(2.0)), confidence: 12.5, inliers: 311 }],
         cloud: Some(cloud()),
         stamp: Some(Timestamp::from_secs_f64(42.25)),
+        settled: true,
     });
 }
 

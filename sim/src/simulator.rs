@@ -174,8 +174,13 @@ impl Simulator {
     /// exact pose at its own firing time, expressed in the sensor frame at t = 0 (`pose_at(0.0)`
     /// in the world), voxel-downsampled per sweep and as a whole. Ground truth for map merging.
     pub fn exact_map(&self, stride: usize, voxel: f32) -> Result<PointCloud, InvalidVoxelSize> {
-        let to_map = self.pose_at(0.0).inverse();
         let frames: Vec<usize> = (0..self.frames()).step_by(stride.max(1)).collect();
+        self.exact_map_of(&frames, voxel)
+    }
+
+    /// [`Self::exact_map`] of the given sweeps only (e.g. the map of a run so far).
+    pub fn exact_map_of(&self, frames: &[usize], voxel: f32) -> Result<PointCloud, InvalidVoxelSize> {
+        let to_map = self.pose_at(0.0).inverse();
         let sweeps = frames
             .par_iter()
             .map(|&f| {

@@ -270,6 +270,13 @@ pub fn holds_all(map: &GlobalMap, keyframes: &[(u32, u64)]) -> bool {
     keyframes.iter().all(|(robot, n)| map.robots.iter().any(|r| r.robot == *robot && r.keyframes == *n))
 }
 
+/// [`holds_all`], and the station merged it at rest: the map a from-scratch merge of those
+/// keyframes gives, what runs are compared by (a map published while robots streamed may place
+/// them from slightly older maps).
+pub fn settled_with_all(map: &GlobalMap, keyframes: &[(u32, u64)]) -> bool {
+    map.settled && holds_all(map, keyframes)
+}
+
 /// True when every robot of the map is merged.
 pub fn all_merged(map: &GlobalMap) -> bool {
     !map.robots.is_empty() && map.robots.iter().all(|r| r.status() == MergeStatus::Merged)

@@ -189,7 +189,7 @@ fn reference_run(dir: &Path) -> (Vec<(u32, u64)>, GlobalMap) {
     procs.extend(edges.iter_mut());
     let keyframes: Vec<(u32, u64)> =
         ROBOTS.iter().map(|r| (r.id, wait_keyframes(dir, "calm", r.id, &mut procs))).collect();
-    let map = observer.wait_global_map(TIMEOUT, &mut procs, |m| holds_all(m, &keyframes));
+    let map = observer.wait_global_map(TIMEOUT, &mut procs, |m| settled_with_all(m, &keyframes));
     (keyframes, map)
 }
 
@@ -554,7 +554,7 @@ fn robots_on_their_own_hosts_lose_no_keyframe_to_cut_lossy_or_restarted_links() 
 
     let kf1 = site.keyframes(1);
     let keyframes = vec![(1, kf1), (2, kf2), (3, kf3)];
-    let map = site.wait_map(|m| holds_all(m, &keyframes));
+    let map = site.wait_map(|m| settled_with_all(m, &keyframes));
     println!("{:.1} s: robot 1 done, all held: {}", t0.elapsed().as_secs_f64(), describe(&map));
 
     // The same keyframes as the uninterrupted run, and the same map.

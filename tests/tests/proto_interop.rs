@@ -76,6 +76,7 @@ fn python_reads_a_global_map_written_by_rust() {
         }],
         cloud: Some(proto::CompressedCloud { data: vec![7u8; 300].into(), points: 99 }),
         stamp: Some(Timestamp { sec: 1_800_000_000, nanosec: 5 }),
+        settled: true,
     };
     std::fs::write(dir.join("map.bin"), map.encode_to_vec()).unwrap();
     let out = python(
@@ -88,7 +89,7 @@ r = g.robots[1]
 print(json.dumps({"fleet": g.fleet, "revision": g.revision, "robots": len(g.robots),
   "status": m.MergeStatus.Name(r.status), "tx": r.transform.tx, "qz": r.transform.qz, "qw": r.transform.qw,
   "conf": r.confidence, "inliers": g.edges[0].inliers, "cloud_len": len(g.cloud.data),
-  "points": g.cloud.points, "sec": g.stamp.sec}))
+  "points": g.cloud.points, "sec": g.stamp.sec, "settled": g.settled}))
 "#,
     );
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
@@ -105,6 +106,7 @@ print(json.dumps({"fleet": g.fleet, "revision": g.revision, "robots": len(g.robo
     assert_eq!(v["cloud_len"], 300);
     assert_eq!(v["points"], 99);
     assert_eq!(v["sec"], 1_800_000_000u64);
+    assert_eq!(v["settled"], true);
     std::fs::remove_dir_all(dir).ok();
 }
 

@@ -52,7 +52,7 @@ impl Fleet {
 
     /// Waits for a global map holding every keyframe of both robots.
     fn wait_complete_map(&mut self, observer: &Observer, keyframes: &[(u32, u64)]) -> GlobalMap {
-        observer.wait_global_map(TIMEOUT, &mut self.procs(), |m| holds_all(m, keyframes))
+        observer.wait_global_map(TIMEOUT, &mut self.procs(), |m| settled_with_all(m, keyframes))
     }
 }
 

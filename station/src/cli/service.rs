@@ -40,10 +40,12 @@ pub struct RunArgs {
     #[arg(long, default_value_t = Preset::Outdoor)]
     preset: Preset,
     /// Quiet time after the last change before a merge starts, milliseconds.
-    #[arg(long, default_value_t = 2000)]
+    #[arg(long, default_value_t = 1000)]
     debounce_ms: u64,
-    /// Longest a change waits for its merge, milliseconds.
-    #[arg(long, default_value_t = 10000)]
+    /// Longest a change waits for its merge, milliseconds: under a steady stream of keyframes the
+    /// map is merged this often (a merge adds the newest points at the known placements and runs a
+    /// bounded amount of registration, see the merge's `max_searches`).
+    #[arg(long, default_value_t = 2000)]
     max_delay_ms: u64,
     /// Serve the live view over the Foxglove WebSocket protocol on this address (e.g.
     /// 127.0.0.1:8765; open it in Foxglove as ws://ADDR): the global map, the robots' frames,

@@ -30,6 +30,15 @@ pub struct Edge {
     pub confidence: Confidence,
     /// RANSAC inliers of the global registration.
     pub inliers: usize,
+    /// Their share of the correspondences: the evidence `confidence.score` is measured with, kept
+    /// so that a tracked transform is scored the same way.
+    pub inlier_ratio: f64,
+    /// True when the global registration was the coarse fallback ([`MergeConfig::coarse`]): the
+    /// scores are then measured on the coarse features.
+    pub coarse: bool,
+    /// True when `transform` was tracked from the pair's previous edge (VGICP from it) rather
+    /// than found by global registration; the other evidence is then that of the last global one.
+    pub tracked: bool,
     /// The strongest distinct alternative against the chosen transform: the smaller of its shares
     /// of inliers and of upright support (0: none found; see [`super::ambiguity`]).
     pub ambiguity: f64,
@@ -41,6 +50,10 @@ pub enum PairRejection {
     /// A map of the pair has no features (see the map's own status).
     #[error("a map of the pair is unusable")]
     Unusable,
+    /// Not estimated yet: the merge's budget of global registrations went to other pairs
+    /// ([`MergeConfig::max_searches`]); a later merge takes it up.
+    #[error("not estimated yet (search budget spent on other pairs)")]
+    Pending,
     /// The global registration's reliability checks failed.
     #[error(transparent)]
     Pairwise(Rejection),
@@ -114,10 +127,10 @@ pub fn estimate_pair(
         return PairVerdict::Rejected { reason: PairRejection::Unusable, best: None, best_transform: None };
     };
     let fine = Scale { source, target, config: &config.pairwise, ambiguity_distance: config.ambiguity_distance };
-    let (scale, global) = match pairwise::align(source, target, &config.pairwise) {
-        PairwiseOutcome::Aligned(r) => (fine, *r),
+    let (scale, global, coarse) = match pairwise::align(source, target, &config.pairwise) {
+        PairwiseOutcome::Aligned(r) => (fine, *r, false),
         PairwiseOutcome::NotAligned { reason, best } => match coarse_alignment(map_b, map_a, config) {
-            Some(found) => found,
+            Some((scale, found)) => (scale, found, true),
             None => {
                 return PairVerdict::Rejected {
                     reason: PairRejection::Pairwise(reason),
@@ -173,7 +186,54 @@ pub fn estimate_pair(
         refined: refined.is_some(),
         confidence: scores,
         inliers,
+        inlier_ratio: global.inlier_ratio,
+        coarse,
+        tracked: false,
         ambiguity,
+    })
+}
+
+/// Follows a linked pair as its maps grow: VGICP from the previous edge's transform (and the
+/// finishing pass), scored at the result with the previous global registration's inlier ratio on
+/// the same features. `None` when the refinement does not converge within
+/// [`MergeConfig::max_refine_translation`] / [`MergeConfig::max_refine_rotation_deg`] of the
+/// previous transform, leaves a larger gap between the maps than it, or scores below
+/// [`MergeConfig::min_confidence`]: the caller then runs the global registration again, with all
+/// its checks.
+///
+/// Tracking cannot swap the link for a repetitive alternative: those lie at least
+/// [`MergeConfig::ambiguity_distance`] away, beyond the refinement's reach, and the previous
+/// transform passed the ambiguity test.
+pub fn track_pair(
+    (a, map_a): (usize, &PreparedMap),
+    (b, map_b): (usize, &PreparedMap),
+    previous: &Edge,
+    config: &MergeConfig,
+) -> Option<Edge> {
+    let (target, source) = if previous.coarse {
+        (map_a.usable_coarse()?, map_b.usable_coarse()?)
+    } else {
+        (map_a.usable()?, map_b.usable()?)
+    };
+    let scoring = if previous.coarse { config.coarse.as_ref()? } else { &config.pairwise };
+    let gap = |t: &Isometry3<f64>| mean_squared_gap(map_b.fine.as_ref(), map_a.fine.as_ref(), t, config.refine_voxel);
+    let refined = refine(map_b, map_a, &previous.transform, config).filter(|t| gap(t) <= gap(&previous.transform))?;
+    let transform = finish(map_b, map_a, &refined, config).unwrap_or(refined);
+    let scores = confidence::confidence(
+        &source.surfels.points,
+        &target.surfels.tree,
+        &transform,
+        previous.inlier_ratio,
+        &scoring.confidence,
+    );
+    (scores.score >= config.min_confidence).then(|| Edge {
+        a,
+        b,
+        transform,
+        refined: true,
+        confidence: scores,
+        tracked: true,
+        ..previous.clone()
     })
 }
 

@@ -9,8 +9,9 @@ use crate::pairwise::{FeatureError, Features};
 
 /// One map ready for pairwise estimates: its finite points, features and VGICP Gaussians.
 pub struct PreparedMap {
-    /// The map's finite points as given (what the global map is built from).
-    pub cloud: PointCloud,
+    /// Finite points of the map it was prepared from (the cloud itself is not kept: the merger
+    /// holds the newest one, from which the global map is built).
+    pub points: usize,
     /// Points dropped because a coordinate was NaN or infinite.
     pub dropped_non_finite: usize,
     /// Pairwise features, or why the map cannot be registered.
@@ -41,7 +42,7 @@ impl PreparedMap {
                 )
             },
         );
-        Self { cloud, dropped_non_finite, features, coarse, fine, finish }
+        Self { points: cloud.len(), dropped_non_finite, features, coarse, fine, finish }
     }
 
     /// The features if the map is usable.

@@ -1,8 +1,15 @@
-//! The incremental merger: per-map preparations cached by revision, pair verdicts by revision pair.
+//! The incremental merger: per-map preparations cached by generation, pair verdicts by the
+//! generations of their two maps, links tracked instead of searched again, and a bounded amount of
+//! global registration per merge.
 //!
 //! Robots send map updates one at a time; recomputing all N(N-1)/2 pairs for each would waste most
-//! of the station's time on pairs that did not change. A map's preparation is redone only when its
-//! revision changes, and a pair only when either revision does.
+//! of the station's time on pairs that did not change. A map that only grows ([`Merger::grow`]) is
+//! prepared again once it has grown by [`MergeConfig::refresh_growth`]; until then its newest
+//! points enter the global map at the placement found on the last preparation. When a preparation
+//! changes, a linked pair is tracked from its last transform ([`track_pair`], VGICP: tens of
+//! milliseconds) and searched again by global registration only when tracking fails its checks or
+//! a map has grown by [`MergeConfig::reverify_growth`] since the link was found; pairs never linked
+//! are searched at most [`MergeConfig::max_searches`] per merge, the longest-waiting first.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -14,22 +21,59 @@ use rustc_hash::FxHashMap;
 
 use super::graph::{self, Chained, GraphEdge};
 use super::{
-    MapReport, MapStatus, MergeConfig, MergeError, MergeReport, MergeTiming, PairReport, PairVerdict, PreparedMap,
-    Unmerged, estimate_pair,
+    MapReport, MapStatus, MergeConfig, MergeError, MergeReport, MergeTiming, PairRejection, PairReport, PairVerdict,
+    PreparedMap, Unmerged, estimate_pair, track_pair,
 };
 
-/// One map slot: the latest revision and its preparation once computed.
+/// One map slot: its newest cloud and the preparation pairs are estimated on.
 struct Slot {
     revision: u64,
-    /// The cloud of a revision not prepared yet.
-    pending: Option<PointCloud>,
-    prepared: Option<Arc<PreparedMap>>,
+    /// The newest cloud, finite points only: what the global map is built from.
+    cloud: Arc<PointCloud>,
+    dropped_non_finite: usize,
+    /// The preparation: of this revision, or of an earlier one while the map only grew.
+    prepared: Option<Preparation>,
+    /// The map changed other than by growing since it was prepared.
+    reshaped: bool,
 }
 
-/// A pair verdict and the revisions it was computed for.
+/// A map's preparation and what it was made from.
+struct Preparation {
+    map: Arc<PreparedMap>,
+    /// Bumped at every preparation of the map; pair verdicts are cached against it.
+    generation: u64,
+}
+
+impl Slot {
+    /// Whether the next merge must prepare the map (new or reshaped), may (grown past
+    /// `refresh_growth`, the growth it shows), or need not.
+    fn staleness(&self, refresh_growth: f64) -> Staleness {
+        match &self.prepared {
+            None => Staleness::Required,
+            Some(_) if self.reshaped => Staleness::Required,
+            Some(p) => {
+                let growth = self.cloud.len() as f64 / p.map.points.max(1) as f64 - 1.0;
+                if growth >= refresh_growth { Staleness::Grown(growth) } else { Staleness::Fresh }
+            }
+        }
+    }
+}
+
+enum Staleness {
+    Required,
+    Grown(f64),
+    Fresh,
+}
+
+/// A pair verdict and what it was computed from.
 struct CachedPair {
-    revisions: (u64, u64),
+    /// Generations of the two maps' preparations.
+    generations: (u64, u64),
     verdict: PairVerdict,
+    /// Points of the two prepared maps when the last global registration ran.
+    searched_at: (usize, usize),
+    /// Merge counter of the last global registration: the longest-waiting pair is searched first.
+    searched_in: u64,
 }
 
 /// How much work the merger has done since it was created.
@@ -37,8 +81,23 @@ struct CachedPair {
 pub struct MergerStats {
     /// Maps prepared (features and Gaussians).
     pub preparations: usize,
-    /// Pairwise estimates computed (cache misses).
+    /// Global registrations of pairs (searches).
     pub pair_estimates: usize,
+    /// Linked pairs followed by VGICP from their last transform and kept.
+    pub tracked: usize,
+    /// Merges run.
+    pub merges: usize,
+}
+
+/// What one pair needs this merge.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum PairWork {
+    /// Its cached verdict stands.
+    Cached,
+    /// Linked before: follow the link.
+    Track,
+    /// A global registration (or, over budget, wait).
+    Search,
 }
 
 /// Merges maps that change over time, recomputing only what a change affects.
@@ -47,13 +106,23 @@ pub struct Merger {
     maps: BTreeMap<usize, Slot>,
     pairs: FxHashMap<(usize, usize), CachedPair>,
     stats: MergerStats,
+    next_generation: u64,
+    /// The next merge settles (see [`Merger::settle`]).
+    settling: bool,
 }
 
 impl Merger {
     /// An empty merger; fails on an invalid configuration.
     pub fn new(config: MergeConfig) -> Result<Self, MergeError> {
         config.validate()?;
-        Ok(Self { config, maps: BTreeMap::new(), pairs: FxHashMap::default(), stats: MergerStats::default() })
+        Ok(Self {
+            config,
+            maps: BTreeMap::new(),
+            pairs: FxHashMap::default(),
+            stats: MergerStats::default(),
+            next_generation: 1,
+            settling: false,
+        })
     }
 
     /// The settings.
@@ -66,12 +135,48 @@ impl Merger {
         self.stats
     }
 
-    /// Sets map `id` to `cloud` at `revision`; a revision already held is ignored.
+    /// Sets map `id` to `cloud` at `revision`, a map of any shape: it is prepared again at the
+    /// next merge. A revision already held is ignored.
     pub fn update(&mut self, id: usize, revision: u64, cloud: PointCloud) {
+        self.set(id, revision, cloud, true);
+    }
+
+    /// Sets map `id` to `cloud` at `revision`, a map that holds everything the previous revision
+    /// held and more (a robot's map gaining keyframes): prepared again only once it has grown by
+    /// [`MergeConfig::refresh_growth`]. A revision already held is ignored.
+    pub fn grow(&mut self, id: usize, revision: u64, cloud: PointCloud) {
+        self.set(id, revision, cloud, false);
+    }
+
+    fn set(&mut self, id: usize, revision: u64, mut cloud: PointCloud, reshaped: bool) {
         if self.maps.get(&id).is_some_and(|s| s.revision == revision) {
             return;
         }
-        self.maps.insert(id, Slot { revision, pending: Some(cloud), prepared: None });
+        let dropped_non_finite = cloud.retain_finite();
+        let cloud = Arc::new(cloud);
+        match self.maps.get_mut(&id) {
+            Some(slot) => {
+                *slot = Slot {
+                    revision,
+                    cloud,
+                    dropped_non_finite,
+                    prepared: slot.prepared.take(),
+                    reshaped: slot.reshaped || reshaped,
+                }
+            }
+            None => {
+                self.maps.insert(id, Slot { revision, cloud, dropped_non_finite, prepared: None, reshaped: false });
+            }
+        }
+    }
+
+    /// Makes the next merge exact rather than quick, for when the robots have gone quiet: every map
+    /// that grew at all is prepared again and every pair whose maps changed, or whose edge was
+    /// tracked, is searched again with every check (still at most [`MergeConfig::max_searches`]
+    /// per merge; the report's `pending` says when more merges are needed). A fleet at rest thus
+    /// gets the placements a from-scratch merge of its final maps would give.
+    pub fn settle(&mut self) {
+        self.settling = true;
     }
 
     /// Forgets map `id` and its pairs.
@@ -83,28 +188,65 @@ impl Merger {
     /// Merges the current revisions of all maps.
     pub fn merge(&mut self) -> Result<MergeReport, MergeError> {
         let watch = Stopwatch::start();
-        let ((), features) = timed(|| self.prepare_stale());
+        self.stats.merges += 1;
+        let (deferred_maps, features) = timed(|| self.prepare_stale());
         let ids: Vec<usize> = self.maps.keys().copied().collect();
         let prepared: Vec<Arc<PreparedMap>> =
-            self.maps.values().map(|s| Arc::clone(s.prepared.as_ref().expect("all maps are prepared"))).collect();
+            self.maps.values().map(|s| Arc::clone(&s.prepared.as_ref().expect("all maps are prepared").map)).collect();
         let reference = self.reference_position(&ids, &prepared)?;
-        let (pairs, pairs_time) = timed(|| self.estimate_pairs(&ids, &prepared));
+        let ((pairs, deferred_pairs), pairs_time) = timed(|| self.estimate_pairs(&ids, &prepared));
         let (layout, graph) = timed(|| layout(&prepared, &pairs, reference));
         let maps = self.map_reports(&ids, &prepared, &pairs, &layout.chained);
-        let ((global_map, origins), assemble) = timed(|| assemble(&prepared, &maps, self.config.output_voxel));
+        let clouds: Vec<Arc<PointCloud>> = self.maps.values().map(|s| Arc::clone(&s.cloud)).collect();
+        let ((global_map, origins), assemble) = timed(|| assemble(&clouds, &maps, self.config.output_voxel));
         let timing = MergeTiming { features, pairs: pairs_time, graph, assemble, total: watch.elapsed() };
-        Ok(MergeReport { maps, pairs, reference: layout.root, tree: layout.tree, global_map, origins, timing })
+        let pending = deferred_maps + deferred_pairs;
+        let settled = std::mem::take(&mut self.settling) && pending == 0;
+        Ok(MergeReport {
+            maps,
+            pairs,
+            reference: layout.root,
+            tree: layout.tree,
+            global_map,
+            origins,
+            timing,
+            pending,
+            settled,
+        })
     }
 
-    /// Prepares, in parallel, every map whose revision has no preparation yet.
-    fn prepare_stale(&mut self) {
+    /// Prepares, in parallel, every map that must be (new, reshaped) and up to
+    /// [`MergeConfig::max_refreshes`] of the grown ones, the most grown first; returns how many
+    /// grown maps wait for a later merge.
+    fn prepare_stale(&mut self) -> usize {
         let config = &self.config;
-        let mut stale: Vec<&mut Slot> = self.maps.values_mut().filter(|s| s.prepared.is_none()).collect();
-        self.stats.preparations += stale.len();
-        stale.par_iter_mut().for_each(|slot| {
-            let cloud = slot.pending.take().unwrap_or_default();
-            slot.prepared = Some(Arc::new(PreparedMap::new(cloud, config)));
-        });
+        let mut required = Vec::new();
+        let mut grown = Vec::new();
+        // Settling: any growth at all counts.
+        let refresh_growth = if self.settling { f64::MIN_POSITIVE } else { config.refresh_growth };
+        for (&id, slot) in &self.maps {
+            match slot.staleness(refresh_growth) {
+                Staleness::Required => required.push(id),
+                Staleness::Grown(g) => grown.push((id, g)),
+                Staleness::Fresh => {}
+            }
+        }
+        grown.sort_by(|a, b| b.1.total_cmp(&a.1));
+        let budget = if self.settling { grown.len() } else { config.max_refreshes };
+        let deferred = grown.len().saturating_sub(budget);
+        required.extend(grown.iter().take(budget).map(|&(id, _)| id));
+        self.stats.preparations += required.len();
+        let fresh: Vec<(usize, PreparedMap)> = required
+            .par_iter()
+            .map(|id| (*id, PreparedMap::new(PointCloud::clone(&self.maps[id].cloud), config)))
+            .collect();
+        for (id, map) in fresh {
+            let slot = self.maps.get_mut(&id).expect("prepared maps exist");
+            slot.prepared = Some(Preparation { map: Arc::new(map), generation: self.next_generation });
+            slot.reshaped = false;
+            self.next_generation += 1;
+        }
+        deferred
     }
 
     /// The position of the configured reference map, checked.
@@ -120,32 +262,83 @@ impl Merger {
         }
     }
 
-    /// Verdicts of all pairs of usable maps: cached ones reused, the others computed in parallel.
-    fn estimate_pairs(&mut self, ids: &[usize], prepared: &[Arc<PreparedMap>]) -> Vec<PairReport> {
-        let revision = |p: usize| self.maps[&ids[p]].revision;
+    /// What pair `(a, b)` (positions) needs, given the maps' current generations.
+    fn work(&self, (ida, idb): (usize, usize), generations: (u64, u64), points: (usize, usize)) -> PairWork {
+        let Some(cached) = self.pairs.get(&(ida, idb)) else { return PairWork::Search };
+        let tracked = cached.verdict.edge().is_some_and(|e| e.tracked);
+        if self.settling && (cached.generations != generations || tracked) {
+            return PairWork::Search;
+        }
+        if cached.generations == generations {
+            return PairWork::Cached;
+        }
+        let grown = |now: usize, then: usize| now as f64 >= (1.0 + self.config.reverify_growth) * then.max(1) as f64;
+        let reverify = grown(points.0, cached.searched_at.0) || grown(points.1, cached.searched_at.1);
+        if cached.verdict.edge().is_some() && !reverify { PairWork::Track } else { PairWork::Search }
+    }
+
+    /// Verdicts of all pairs of usable maps: cached ones reused, links tracked, and at most
+    /// [`MergeConfig::max_searches`] global registrations, all in parallel; with the number of
+    /// pairs left waiting for a search.
+    fn estimate_pairs(&mut self, ids: &[usize], prepared: &[Arc<PreparedMap>]) -> (Vec<PairReport>, usize) {
+        let generation = |p: usize| self.maps[&ids[p]].prepared.as_ref().map_or(0, |x| x.generation);
         let usable: Vec<usize> = (0..ids.len()).filter(|&p| prepared[p].usable().is_some()).collect();
         let all: Vec<(usize, usize)> =
             usable.iter().flat_map(|&a| usable.iter().filter(move |&&b| b > a).map(move |&b| (a, b))).collect();
-        let is_cached = |&(a, b): &(usize, usize)| {
-            self.pairs.get(&(ids[a], ids[b])).is_some_and(|c| c.revisions == (revision(a), revision(b)))
-        };
-        let stale: Vec<(usize, usize)> = all.iter().copied().filter(|p| !is_cached(p)).collect();
+        let points = |(a, b): (usize, usize)| (prepared[a].points, prepared[b].points);
+        let generations = |(a, b): (usize, usize)| (generation(a), generation(b));
+        let work: Vec<PairWork> =
+            all.iter().map(|&p| self.work((ids[p.0], ids[p.1]), generations(p), points(p))).collect();
+        let tracks: Vec<(usize, usize)> = select(&all, &work, PairWork::Track);
+        let mut searches: Vec<(usize, usize)> = select(&all, &work, PairWork::Search);
+        let waited = |&(a, b): &(usize, usize)| self.pairs.get(&(ids[a], ids[b])).map_or(0, |c| c.searched_in);
+        searches.sort_by_key(waited);
         let config = &self.config;
-        let fresh: Vec<PairVerdict> =
-            stale.par_iter().map(|&(a, b)| estimate_pair((a, &prepared[a]), (b, &prepared[b]), config)).collect();
-        self.stats.pair_estimates += stale.len();
-        for (&(a, b), verdict) in stale.iter().zip(fresh) {
-            let revisions = (revision(a), revision(b));
-            self.pairs.insert((ids[a], ids[b]), CachedPair { revisions, verdict });
-        }
-        all.into_iter()
-            .map(|(a, b)| PairReport {
-                a,
-                b,
-                verdict: with_positions(&self.pairs[&(ids[a], ids[b])].verdict, a, b),
-                cached: !stale.contains(&(a, b)),
+        let followed: Vec<Option<PairVerdict>> = tracks
+            .par_iter()
+            .map(|&(a, b)| {
+                let previous = self.pairs[&(ids[a], ids[b])].verdict.edge().expect("tracked pairs are linked");
+                track_pair((a, &prepared[a]), (b, &prepared[b]), previous, config).map(PairVerdict::Edge)
             })
-            .collect()
+            .collect();
+        let mut done: Vec<(usize, usize)> = Vec::new();
+        for (&(a, b), verdict) in tracks.iter().zip(followed) {
+            match verdict {
+                Some(verdict) => {
+                    let cached = self.pairs.get_mut(&(ids[a], ids[b])).expect("tracked pairs are cached");
+                    cached.verdict = verdict;
+                    cached.generations = generations((a, b));
+                    self.stats.tracked += 1;
+                    done.push((a, b));
+                }
+                // Lost: search again, first in line.
+                None => searches.insert(0, (a, b)),
+            }
+        }
+        let deferred = searches.split_off(searches.len().min(config.max_searches));
+        let found: Vec<PairVerdict> =
+            searches.par_iter().map(|&(a, b)| estimate_pair((a, &prepared[a]), (b, &prepared[b]), config)).collect();
+        self.stats.pair_estimates += searches.len();
+        let merge = self.stats.merges as u64;
+        for (&(a, b), verdict) in searches.iter().zip(found) {
+            let pair = CachedPair {
+                generations: generations((a, b)),
+                verdict,
+                searched_at: points((a, b)),
+                searched_in: merge,
+            };
+            self.pairs.insert((ids[a], ids[b]), pair);
+            done.push((a, b));
+        }
+        let pending = PairVerdict::Rejected { reason: PairRejection::Pending, best: None, best_transform: None };
+        let reports = all
+            .into_iter()
+            .map(|(a, b)| {
+                let verdict = self.pairs.get(&(ids[a], ids[b])).map_or(&pending, |c| &c.verdict);
+                PairReport { a, b, verdict: with_positions(verdict, a, b), cached: !done.contains(&(a, b)) }
+            })
+            .collect();
+        (reports, deferred.len())
     }
 
     /// Per-map reports from the chained tree.
@@ -157,15 +350,23 @@ impl Merger {
         chained: &[Option<Chained>],
     ) -> Vec<MapReport> {
         (0..ids.len())
-            .map(|p| MapReport {
-                id: ids[p],
-                revision: self.maps[&ids[p]].revision,
-                points: prepared[p].cloud.len(),
-                dropped_non_finite: prepared[p].dropped_non_finite,
-                status: status(p, &prepared[p], pairs, chained[p].as_ref()),
+            .map(|p| {
+                let slot = &self.maps[&ids[p]];
+                MapReport {
+                    id: ids[p],
+                    revision: slot.revision,
+                    points: slot.cloud.len(),
+                    dropped_non_finite: slot.dropped_non_finite,
+                    status: status(p, &prepared[p], pairs, chained[p].as_ref()),
+                }
             })
             .collect()
     }
+}
+
+/// The pairs whose work is `kind`.
+fn select(all: &[(usize, usize)], work: &[PairWork], kind: PairWork) -> Vec<(usize, usize)> {
+    all.iter().zip(work).filter(|(_, w)| **w == kind).map(|(p, _)| *p).collect()
 }
 
 /// A cached verdict with its edge renumbered to the current map positions (maps may have been
@@ -223,17 +424,17 @@ fn status(p: usize, map: &PreparedMap, pairs: &[PairReport], chained: Option<&Ch
 
 /// Paper eq. 11: the union of the merged maps in the global frame, voxelised to fuse duplicates;
 /// with each point's map id.
-fn assemble(prepared: &[Arc<PreparedMap>], maps: &[MapReport], voxel: f32) -> (PointCloud, Vec<usize>) {
+fn assemble(clouds: &[Arc<PointCloud>], maps: &[MapReport], voxel: f32) -> (PointCloud, Vec<usize>) {
     let merged: Vec<usize> = (0..maps.len()).filter(|&p| maps[p].is_merged()).collect();
     // Ring and time are per-sweep quantities, meaningless in a global map; intensity is kept when
     // every merged map has it. The ring channel carries each point's map position through the
     // voxel grid instead (a voxel keeps its first point's), and is taken out again below.
-    let intensity = merged.iter().all(|&p| prepared[p].cloud.intensity.is_some());
+    let intensity = merged.iter().all(|&p| clouds[p].intensity.is_some());
     let moved: Vec<PointCloud> = merged
         .par_iter()
         .enumerate()
         .map(|(k, &p)| {
-            let c = &prepared[p].cloud;
+            let c = &clouds[p];
             let label = Some(vec![k as u16; c.len()]);
             let bare = PointCloud { points: c.points.clone(), intensity: c.intensity.clone(), ring: label, time: None };
             bare.transformed(&maps[p].transform().cast::<f32>())

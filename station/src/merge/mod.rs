@@ -40,8 +40,11 @@
 //!
 //! A map's published confidence is the lowest edge score on its tree path to the reference (the
 //! weakest link bounds the whole chain); the reference itself has 1. [`Merger`] keeps per-map
-//! preparations by revision and pairwise results by `(revision_a, revision_b)`, so updating one map
-//! recomputes only its pairs. Bad input (empty or tiny maps, NaN points) gives an unmerged map with
+//! preparations and pairwise results by the preparations they were computed on, so updating one
+//! map recomputes only its pairs; a map that only grows is prepared again once it has grown by
+//! [`MergeConfig::refresh_growth`], a linked pair is then tracked from its last transform
+//! ([`track_pair`]) instead of searched again, and a merge runs at most
+//! [`MergeConfig::max_searches`] global registrations (see [`merger`]). Bad input (empty or tiny maps, NaN points) gives an unmerged map with
 //! a reason, never a panic.
 
 pub mod ambiguity;
@@ -59,7 +62,7 @@ use nalgebra::Isometry3;
 
 use crate::pairwise::{FeatureError, PairwiseConfig};
 
-pub use estimate::{Edge, PairRejection, PairVerdict, estimate_pair};
+pub use estimate::{Edge, PairRejection, PairVerdict, estimate_pair, track_pair};
 pub use map::PreparedMap;
 pub use merger::Merger;
 
@@ -141,6 +144,24 @@ pub struct MergeConfig {
     pub reference: Option<usize>,
     /// Voxel of the merged global map, metres (outdoor 0.2, indoor 0.1).
     pub output_voxel: f32,
+    /// Growing maps (see [`Merger::grow`]): a map is prepared again, and its pairs estimated
+    /// again, once it has this share more points than when it was last prepared (default 0.25).
+    /// In between, the global map takes its newest points at the placement estimated on the last
+    /// preparation: the transform between two robots' frames does not change as they drive on.
+    pub refresh_growth: f64,
+    /// A linked pair is tracked from its last transform when its maps change; the global
+    /// registration runs again, with every check, once either map has this share more points than
+    /// when the link was last found that way (default 1.0: at every doubling), so that a link made
+    /// on small maps is re-examined on the larger evidence.
+    pub reverify_growth: f64,
+    /// Most global registrations per merge (default 8); the other pairs waiting for one keep
+    /// their last verdict (or [`PairRejection::Pending`]) and the merge reports them as pending,
+    /// so the station merges again. Bounds a merge's time however large the fleet.
+    pub max_searches: usize,
+    /// Most grown maps prepared again per merge, the most grown first (default 2, a map per core
+    /// of a small station: preparing is the costliest step of a merge); new maps and
+    /// maps whose shape changed are always prepared.
+    pub max_refreshes: usize,
 }
 
 impl Default for MergeConfig {
@@ -178,6 +199,10 @@ impl MergeConfig {
             ambiguity_distance: 4.0,
             reference: None,
             output_voxel: 0.2,
+            refresh_growth: 0.25,
+            reverify_growth: 1.0,
+            max_searches: 8,
+            max_refreshes: 2,
         }
     }
 
@@ -225,11 +250,14 @@ impl MergeConfig {
             && self.min_confidence.is_finite()
             && self.max_ambiguity.is_finite()
             && positive(self.ambiguity_distance)
+            && positive(self.refresh_growth)
+            && positive(self.reverify_growth)
+            && self.max_searches > 0
             && positive(self.refine.voxel_resolution)
             && positive(self.refine.max_correspondence_distance);
         if !ok {
             return Err(MergeError::Config(FeatureError::InvalidConfig(
-                "merge voxels, refinement limits and min_confidence must be positive and finite",
+                "merge voxels, refinement limits, growth shares, max_searches and min_confidence must be positive and finite",
             )));
         }
         Ok(())
@@ -341,6 +369,14 @@ pub struct PairReport {
     pub cached: bool,
 }
 
+impl PairReport {
+    /// True when the pair was never estimated: it waits for a global registration a later merge
+    /// will run.
+    pub fn pending(&self) -> bool {
+        matches!(self.verdict, PairVerdict::Rejected { reason: PairRejection::Pending, .. })
+    }
+}
+
 /// Wall time of each stage of one merge.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct MergeTiming {
@@ -374,6 +410,12 @@ pub struct MergeReport {
     pub origins: Vec<usize>,
     /// Time per stage.
     pub timing: MergeTiming,
+    /// Work this merge left for the next one (pairs over [`MergeConfig::max_searches`], grown maps
+    /// over [`MergeConfig::max_refreshes`]): merge again even if nothing changes.
+    pub pending: usize,
+    /// The merge settled ([`Merger::settle`]) and left nothing pending: exactly what a merge from
+    /// scratch of the current maps gives.
+    pub settled: bool,
 }
 
 impl MergeReport {

@@ -107,6 +107,7 @@ pub fn placements_json(map: &GlobalMap) -> Value {
         "fleet": map.fleet,
         "revision": map.revision,
         "reference_robot": map.reference_robot,
+        "settled": map.settled,
         "robots": robots,
         "edges": edges,
     })

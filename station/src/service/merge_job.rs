@@ -6,11 +6,12 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use cloud::PointCloud;
-use cloud::voxel::downsample;
-use nalgebra::{Isometry3, Point3};
+use cloud::voxel::VoxelMap;
+use nalgebra::Isometry3;
 use prost::Message;
 use proto::codec::{self, CodecConfig};
 use proto::{CompressedCloud, Fleet, GlobalMap, MergeEdge, MergeStatus, RobotPlacement, Timestamp};
+use rustc_hash::FxHashSet;
 
 use super::fleet_state::{Basis, FleetState};
 use crate::merge::{MergeConfig, MergeError, MergeReport, Merger, PairVerdict};
@@ -23,9 +24,20 @@ pub struct RobotSnapshot {
     /// The robot's map revision.
     pub revision: u64,
     /// Keyframe clouds (sensor frame) and the poses that move them into the robot's odometry frame.
-    pub keyframes: Vec<(Arc<PointCloud>, Isometry3<f64>)>,
+    pub keyframes: Vec<PlacedKeyframe>,
     /// What this snapshot is built from.
     pub basis: Basis,
+}
+
+/// A keyframe's cloud and its best pose.
+#[derive(Clone, Debug)]
+pub struct PlacedKeyframe {
+    /// Sequence number.
+    pub seq: u64,
+    /// The cloud, in the sensor frame.
+    pub cloud: Arc<PointCloud>,
+    /// Moves the cloud into the robot's odometry frame.
+    pub pose: Isometry3<f64>,
 }
 
 /// Snapshots of every robot, cheap to take (clouds are shared).
@@ -39,7 +51,7 @@ pub fn snapshot(state: &FleetState) -> Vec<RobotSnapshot> {
             keyframes: r
                 .keyframes()
                 .iter()
-                .filter_map(|(&seq, kf)| Some((Arc::clone(&kf.cloud), r.pose(seq)?)))
+                .filter_map(|(&seq, kf)| Some(PlacedKeyframe { seq, cloud: Arc::clone(&kf.cloud), pose: r.pose(seq)? }))
                 .collect(),
             basis: r.basis(),
         })
@@ -59,6 +71,9 @@ pub struct MergeOutcome {
     pub elapsed: Duration,
     /// The global map's points as merged, before the codec, with their robots (for the live view).
     pub cloud: MapCloud,
+    /// The merge settled (see [`crate::merge::MergeReport::settled`]): no other is needed until
+    /// something changes.
+    pub settled: bool,
 }
 
 /// The global map's points with the robot each came from.
@@ -70,11 +85,22 @@ pub struct MapCloud {
     pub robots: Vec<u32>,
 }
 
+/// One robot's local map as the worker built it: grown keyframe by keyframe while the poses stay.
+struct LocalMap {
+    /// Map revision last given to the merger.
+    revision: u64,
+    /// The pose-graph revision the poses came from.
+    pose_revision: Option<u64>,
+    /// Keyframes already in `map`.
+    included: FxHashSet<u64>,
+    map: VoxelMap,
+}
+
 /// The merger and what it has been given, kept across jobs so that re-merges reuse its caches.
 pub struct MergeWorker {
     merger: Merger,
-    /// Map revision last given to the merger, per robot.
-    given: BTreeMap<u32, u64>,
+    /// Per robot, the local map given to the merger.
+    maps: BTreeMap<u32, LocalMap>,
     voxel: f32,
 }
 
@@ -82,17 +108,24 @@ impl MergeWorker {
     /// A worker with an empty merger.
     pub fn new(config: MergeConfig) -> Result<Self, MergeError> {
         let voxel = local_map_voxel(&config);
-        Ok(Self { merger: Merger::new(config)?, given: BTreeMap::new(), voxel })
+        Ok(Self { merger: Merger::new(config)?, maps: BTreeMap::new(), voxel })
     }
 
-    /// Merges the robots' current maps into global map `revision` of `fleet`.
-    pub fn run(&mut self, fleet: &Fleet, revision: u64, robots: &[RobotSnapshot]) -> Result<MergeOutcome, MergeError> {
+    /// Merges the robots' current maps into global map `revision` of `fleet`; `settle` when the
+    /// robots have gone quiet (see [`Merger::settle`]).
+    pub fn run(
+        &mut self,
+        fleet: &Fleet,
+        revision: u64,
+        robots: &[RobotSnapshot],
+        settle: bool,
+    ) -> Result<MergeOutcome, MergeError> {
         let clock = Instant::now();
         for r in robots {
-            if self.given.get(&r.robot) != Some(&r.revision) {
-                self.merger.update(r.robot as usize, r.revision, local_map(&r.keyframes, self.voxel));
-                self.given.insert(r.robot, r.revision);
-            }
+            self.give(r);
+        }
+        if settle {
+            self.merger.settle();
         }
         let report = self.merger.merge()?;
         log_report(&report);
@@ -101,7 +134,37 @@ impl MergeWorker {
         let basis = robots.iter().map(|r| (r.robot, r.basis)).collect();
         // Map ids are robot ids (see `RobotSnapshot::robot`).
         let cloud = MapCloud { robots: report.origins.iter().map(|&id| id as u32).collect(), cloud: report.global_map };
-        Ok(MergeOutcome { map, bytes, basis, elapsed: clock.elapsed(), cloud })
+        Ok(MergeOutcome { map, bytes, basis, elapsed: clock.elapsed(), cloud, settled: report.settled })
+    }
+
+    /// Brings robot `r`'s local map up to its snapshot: new keyframes are added to it (the map
+    /// grows); new poses rebuild it (the map changes shape).
+    fn give(&mut self, r: &RobotSnapshot) {
+        let id = r.robot as usize;
+        let current = self.maps.get(&r.robot).filter(|m| m.pose_revision == r.basis.pose_revision);
+        if current.is_some_and(|m| m.revision == r.revision) {
+            return;
+        }
+        let rebuilt = current.is_none();
+        if rebuilt {
+            let map = VoxelMap::new(self.voxel).expect("local_map_voxel is validated positive");
+            let fresh =
+                LocalMap { revision: 0, pose_revision: r.basis.pose_revision, included: FxHashSet::default(), map };
+            self.maps.insert(r.robot, fresh);
+        }
+        let local = self.maps.get_mut(&r.robot).expect("inserted above");
+        for kf in &r.keyframes {
+            if local.included.insert(kf.seq) {
+                let pose = kf.pose.cast::<f32>();
+                local.map.insert(kf.cloud.points.iter().map(|p| pose * p));
+            }
+        }
+        local.revision = r.revision;
+        if rebuilt {
+            self.merger.update(id, r.revision, local.map.cloud());
+        } else {
+            self.merger.grow(id, r.revision, local.map.cloud());
+        }
     }
 }
 
@@ -139,19 +202,6 @@ fn local_map_voxel(config: &MergeConfig) -> f32 {
     config.pairwise.global.preprocess.voxel_size.min(config.refine_voxel).min(config.output_voxel)
 }
 
-/// The keyframes' clouds moved by their poses, unioned and voxelised.
-pub fn local_map(keyframes: &[(Arc<PointCloud>, Isometry3<f64>)], voxel: f32) -> PointCloud {
-    let points: Vec<Point3<f32>> = keyframes
-        .iter()
-        .flat_map(|(cloud, pose)| {
-            let pose = pose.cast::<f32>();
-            cloud.points.iter().map(move |p| pose * p)
-        })
-        .collect();
-    let union = PointCloud::from_points(points);
-    downsample(&union, voxel).unwrap_or(union)
-}
-
 /// The `GlobalMap` message of a merge report.
 fn global_map(fleet: &Fleet, revision: u64, report: &MergeReport, robots: &[RobotSnapshot]) -> GlobalMap {
     let keyframes: BTreeMap<u32, u64> = robots.iter().map(|r| (r.robot, r.keyframes.len() as u64)).collect();
@@ -186,6 +236,7 @@ fn global_map(fleet: &Fleet, revision: u64, report: &MergeReport, robots: &[Robo
         edges,
         cloud: Some(compress(&report.global_map)),
         stamp: Some(Timestamp::now()),
+        settled: report.settled,
     }
 }
 

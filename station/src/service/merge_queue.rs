@@ -33,6 +33,12 @@ impl MergeQueue {
         Some((last + self.debounce).min(first + self.max_delay))
     }
 
+    /// True when the pending changes have settled at `now` (the last one is `debounce` old), as
+    /// opposed to a job forced by `max_delay` under a steady stream of changes.
+    pub fn quiet(&self, now: Instant) -> bool {
+        self.dirty.is_some_and(|(_, last)| now >= last + self.debounce)
+    }
+
     /// Starts the pending job if it is due at `now`; true when it did.
     pub fn start(&mut self, now: Instant) -> bool {
         if self.deadline().is_none_or(|d| now < d) {
@@ -77,6 +83,8 @@ mod tests {
         q.changed(t0 + 9 * S);
         assert_eq!(q.deadline(), Some(t0 + 10 * S), "max_delay after the first change");
         assert!(!q.start(t0 + 9 * S));
+        assert!(!q.quiet(t0 + 10 * S), "forced by max_delay while changes go on");
+        assert!(q.quiet(t0 + 11 * S));
         assert!(q.start(t0 + 10 * S));
         assert_eq!(q.depth(), 0);
     }

@@ -56,14 +56,14 @@ pub struct StationConfig {
 }
 
 impl StationConfig {
-    /// In-memory, outdoor merge preset (see `emr-station run --preset`), 2 s debounce, 10 s at most, status every second, no live view.
+    /// In-memory, outdoor merge preset (see `emr-station run --preset`), 1 s debounce, 2 s at most, status every second, no live view.
     pub fn new(fleet: Fleet) -> Self {
         Self {
             fleet,
             data_dir: None,
             merge: MergeConfig::outdoor(),
-            debounce: Duration::from_secs(2),
-            max_delay: Duration::from_secs(10),
+            debounce: Duration::from_secs(1),
+            max_delay: Duration::from_secs(2),
             status_period: Duration::from_secs(1),
             live: None,
         }

@@ -271,8 +271,10 @@ impl Core {
         reloaded: Reloaded,
     ) -> Core {
         let mut queue = MergeQueue::new(config.debounce, config.max_delay);
-        // Re-merge only when the state differs from what the persisted map was built from.
-        let current = reloaded.latest.is_some() && reloaded.basis == reloaded.state.basis();
+        // Re-merge only when the state differs from what the persisted map was built from, or that
+        // map was merged while robots streamed (not settled).
+        let settled = reloaded.latest.as_ref().is_some_and(|l| l.map.settled);
+        let current = settled && reloaded.basis == reloaded.state.basis();
         if !current && reloaded.state.total_keyframes() > 0 {
             queue.changed(Instant::now());
         }
@@ -463,14 +465,17 @@ impl Core {
     }
 
     fn start_merge(&mut self) -> Option<JoinHandle<JobResult>> {
-        if !self.queue.start(Instant::now()) {
+        let now = Instant::now();
+        // Robots gone quiet: this merge may take the time to be exact (see `Merger::settle`).
+        let quiet = self.queue.quiet(now);
+        if !self.queue.start(now) {
             return None;
         }
         let mut worker = self.worker.take().expect("no job runs, so the worker is home");
         let robots = snapshot(&self.state);
         let (fleet, revision) = (self.fleet.clone(), self.next_revision);
         Some(tokio::task::spawn_blocking(move || {
-            let outcome = worker.run(&fleet, revision, &robots);
+            let outcome = worker.run(&fleet, revision, &robots, quiet);
             (worker, outcome)
         }))
     }
@@ -481,7 +486,15 @@ impl Core {
             Ok((worker, outcome)) => {
                 self.worker = Some(worker);
                 match outcome {
-                    Ok(outcome) => self.publish_map(outcome, publisher).await,
+                    Ok(outcome) => {
+                        // Merged while robots streamed, or work left over (searches over the
+                        // budget): merge again, changes or not, so that the fleet at rest gets a
+                        // settled map (see `Merger::settle`).
+                        if !outcome.settled {
+                            self.queue.changed(Instant::now());
+                        }
+                        self.publish_map(outcome, publisher).await
+                    }
                     Err(e) => error!("merge failed: {e}"),
                 }
             }
@@ -493,7 +506,7 @@ impl Core {
     }
 
     async fn publish_map(&mut self, outcome: MergeOutcome, publisher: &Publisher<'static>) {
-        let MergeOutcome { map, bytes, basis, elapsed, cloud } = outcome;
+        let MergeOutcome { map, bytes, basis, elapsed, cloud, .. } = outcome;
         let ms = cloud::stopwatch::millis(elapsed);
         let merged = map.robots.iter().filter(|r| r.status == proto::MergeStatus::Merged as i32).count();
         info!("global map revision {}: {merged} of {} robots merged ({ms:.0} ms)", map.revision, map.robots.len());

@@ -1,0 +1,162 @@
+//! Maps that grow as robots drive, merged after each step the way the station does: links are
+//! tracked rather than searched again, searches are bounded per merge, and every placement
+//! published on the way is checked against the simulator's truth.
+
+use cloud::PointCloud;
+use cloud::se3::pose_error;
+use nalgebra::Isometry3;
+use sim::{Scenario, SimConfig, Simulator};
+use station::merge::merger::MergerStats;
+use station::merge::{MergeConfig, MergeReport, Merger};
+
+/// One robot's exact map after each of `steps` equal shares of its run, every `stride`-th sweep.
+fn growing_maps(sim: &Simulator, steps: usize, stride: usize, voxel: f32) -> Vec<PointCloud> {
+    let frames: Vec<usize> = (0..sim.frames()).step_by(stride).collect();
+    (1..=steps).map(|k| sim.exact_map_of(&frames[..frames.len() * k / steps], voxel).unwrap()).collect()
+}
+
+/// A scenario's robots with their maps over time and the world pose of each map's frame.
+struct Fleet {
+    maps: Vec<Vec<PointCloud>>,
+    frames: Vec<Isometry3<f64>>,
+}
+
+fn fleet(name: &str, steps: usize, voxel: f32) -> Fleet {
+    let scenario = Scenario::by_name(name).unwrap();
+    let sims: Vec<Simulator> = (0..scenario.robots().len())
+        .map(|r| Simulator::new(scenario.clone(), r, SimConfig::default()).unwrap())
+        .collect();
+    Fleet {
+        maps: sims.iter().map(|s| growing_maps(s, steps, 10, voxel)).collect(),
+        frames: sims.iter().map(|s| s.pose_at(0.0)).collect(),
+    }
+}
+
+/// The worst error of any merged map's placement against the truth in the reference's frame.
+fn worst_error(report: &MergeReport, frames: &[Isometry3<f64>]) -> (f64, f64) {
+    let Some(reference) = report.reference else { return (0.0, 0.0) };
+    let root = report.maps[reference].id;
+    report.maps.iter().filter(|m| m.is_merged()).fold((0.0, 0.0), |(t, r), m| {
+        let truth = frames[root].inverse() * frames[m.id];
+        let e = pose_error(&m.transform(), &truth);
+        (t.max(e.translation_m), r.max(e.rotation_deg))
+    })
+}
+
+/// Grows every map step by step and merges after each step until nothing is pending; checks each
+/// published placement on the way.
+fn merge_as_they_grow(fleet: &Fleet, config: MergeConfig) -> (MergeReport, MergerStats) {
+    let steps = fleet.maps[0].len();
+    let mut merger = Merger::new(config).unwrap();
+    let mut last = None;
+    for step in 0..steps {
+        for (id, maps) in fleet.maps.iter().enumerate() {
+            merger.grow(id, step as u64, maps[step].clone());
+        }
+        loop {
+            let report = merger.merge().unwrap();
+            let (t, r) = worst_error(&report, &fleet.frames);
+            println!(
+                "step {step}: merged {} of {}, pending {}, worst {t:.3} m {r:.2} deg, {:?}",
+                report.merged(),
+                report.maps.len(),
+                report.pending,
+                merger.stats()
+            );
+            assert!(t < 0.05 && r < 0.5, "step {step}: a placement {t:.3} m / {r:.2} deg off the truth");
+            let pending = report.pending;
+            last = Some(report);
+            if pending == 0 {
+                break;
+            }
+        }
+    }
+    (last.unwrap(), merger.stats())
+}
+
+#[test]
+fn campus_links_are_tracked_as_the_maps_grow() {
+    let fleet = fleet("campus", 5, 0.2);
+    let (report, stats) = merge_as_they_grow(&fleet, MergeConfig::outdoor());
+    assert_eq!(report.merged(), 4, "all four campus robots in the end");
+    // Once linked, a pair is followed by VGICP, not searched again at every refresh.
+    assert!(stats.tracked > 0, "{stats:?}");
+    let tracked_edges = report.edges().filter(|e| e.tracked).count();
+    assert!(tracked_edges > 0, "the final graph holds tracked links");
+}
+
+#[test]
+fn a_settled_merge_searches_again_what_was_tracked_or_grew() {
+    let fleet = fleet("campus", 3, 0.2);
+    let config = MergeConfig::outdoor();
+    let mut merger = Merger::new(config.clone()).unwrap();
+    for step in 0..3 {
+        for (id, maps) in fleet.maps.iter().enumerate() {
+            merger.grow(id, step as u64, maps[step].clone());
+        }
+        while merger.merge().unwrap().pending > 0 {}
+    }
+    let before = merger.stats();
+    merger.settle();
+    let mut settled = merger.merge().unwrap();
+    while settled.pending > 0 {
+        settled = merger.merge().unwrap();
+    }
+    assert!(merger.stats().pair_estimates > before.pair_estimates, "{before:?} -> {:?}", merger.stats());
+    assert_eq!(settled.edges().filter(|e| e.tracked).count(), 0, "every edge searched on the final maps");
+    assert_eq!(settled.merged(), 4);
+    let (t, r) = worst_error(&settled, &fleet.frames);
+    assert!(t < 0.05 && r < 0.5, "{t:.3} m / {r:.2} deg");
+    // Settled and nothing changed since: nothing is searched again.
+    let searched = merger.stats().pair_estimates;
+    merger.merge().unwrap();
+    assert_eq!(merger.stats().pair_estimates, searched);
+}
+
+#[test]
+fn searches_are_bounded_per_merge_and_the_rest_wait() {
+    let fleet = fleet("campus", 1, 0.2);
+    let config = MergeConfig { max_searches: 2, ..MergeConfig::outdoor() };
+    let mut merger = Merger::new(config).unwrap();
+    for (id, maps) in fleet.maps.iter().enumerate() {
+        merger.grow(id, 0, maps[0].clone());
+    }
+    let first = merger.merge().unwrap();
+    assert_eq!(merger.stats().pair_estimates, 2);
+    assert_eq!(first.pending, 4, "six pairs, two searched");
+    assert_eq!(first.pairs.iter().filter(|p| p.pending()).count(), 4);
+    while merger.merge().unwrap().pending > 0 {}
+    assert_eq!(merger.stats().pair_estimates, 6, "each pair searched once");
+    assert_eq!(merger.stats().merges, 3, "two at a time");
+    // Nothing changed: nothing to do.
+    let idle = merger.merge().unwrap();
+    assert_eq!((idle.pending, merger.stats().pair_estimates), (0, 6));
+    assert_eq!(idle.merged(), 4);
+    assert!(worst_error(&idle, &fleet.frames).0 < 0.05);
+}
+
+#[test]
+fn a_map_that_barely_grew_is_not_prepared_again_but_its_points_are_in_the_global_map() {
+    let fleet = fleet("campus", 1, 0.2);
+    let mut merger = Merger::new(MergeConfig::outdoor()).unwrap();
+    for (id, maps) in fleet.maps.iter().enumerate() {
+        merger.grow(id, 0, maps[0].clone());
+    }
+    let before = merger.merge().unwrap();
+    let prepared = merger.stats().preparations;
+    // Robot 0 gains a few points far from everything (under the refresh share).
+    let mut grown = fleet.maps[0][0].clone();
+    let extra: Vec<nalgebra::Point3<f32>> =
+        (0..200).map(|i| nalgebra::Point3::new(500.0 + i as f32, 500.0, 0.0)).collect();
+    grown.points.extend(&extra);
+    merger.grow(0, 1, grown);
+    let after = merger.merge().unwrap();
+    assert_eq!(merger.stats().preparations, prepared, "not prepared again");
+    assert_eq!(after.maps[0].points, before.maps[0].points + 200);
+    let placed = after.maps[0].transform().cast::<f32>() * extra[0];
+    assert!(after.global_map.points.iter().any(|p| (p - placed).norm() < 0.2), "the new points are published");
+    // `update` says the map changed shape: prepared again.
+    merger.update(0, 2, fleet.maps[0][0].clone());
+    merger.merge().unwrap();
+    assert_eq!(merger.stats().preparations, prepared + 1);
+}
