@@ -24,29 +24,65 @@ impl VoxelKey {
 #[error("voxel size must be positive and finite, got {0}")]
 pub struct InvalidVoxelSize(pub f32);
 
+/// Cells of a grid, each created at the first point that falls in it and kept in that order (what
+/// makes the output of a voxel grid deterministic for a given input).
+#[derive(Clone, Debug, Default)]
+struct Cells<T> {
+    slot: FxHashMap<VoxelKey, usize>,
+    cells: Vec<T>,
+}
+
+impl<T: Default> Cells<T> {
+    /// The cell of `key`, created empty if it is new.
+    fn at(&mut self, key: VoxelKey) -> &mut T {
+        let next = self.cells.len();
+        let s = *self.slot.entry(key).or_insert(next);
+        if s == next {
+            self.cells.push(T::default());
+        }
+        &mut self.cells[s]
+    }
+}
+
+/// Running sum of one voxel's positions.
+#[derive(Clone, Copy, Debug, Default)]
+struct PositionSum {
+    /// f64 sums: thousands of f32 points at 100 m would lose millimetres in f32.
+    sum: [f64; 3],
+    count: u32,
+}
+
+impl PositionSum {
+    fn add(&mut self, p: &Point3<f32>) {
+        self.sum[0] += f64::from(p.x);
+        self.sum[1] += f64::from(p.y);
+        self.sum[2] += f64::from(p.z);
+        self.count += 1;
+    }
+
+    fn mean(&self) -> Point3<f32> {
+        let n = f64::from(self.count);
+        Point3::new((self.sum[0] / n) as f32, (self.sum[1] / n) as f32, (self.sum[2] / n) as f32)
+    }
+}
+
 /// Running sums of one voxel's points.
 #[derive(Clone, Copy, Default)]
 struct Centroid {
-    sum: [f64; 3],
+    position: PositionSum,
     intensity: f64,
     time: f64,
     ring: u16,
-    count: u32,
 }
 
 impl Centroid {
     fn add(&mut self, cloud: &PointCloud, i: usize) {
-        let p = &cloud.points[i];
-        // f64 sums: thousands of f32 points at 100 m would lose millimetres in f32.
-        self.sum[0] += f64::from(p.x);
-        self.sum[1] += f64::from(p.y);
-        self.sum[2] += f64::from(p.z);
-        self.intensity += cloud.intensity.as_ref().map_or(0.0, |v| f64::from(v[i]));
-        self.time += cloud.time.as_ref().map_or(0.0, |v| f64::from(v[i]));
-        if self.count == 0 {
+        if self.position.count == 0 {
             self.ring = cloud.ring.as_ref().map_or(0, |v| v[i]);
         }
-        self.count += 1;
+        self.position.add(&cloud.points[i]);
+        self.intensity += cloud.intensity.as_ref().map_or(0.0, |v| f64::from(v[i]));
+        self.time += cloud.time.as_ref().map_or(0.0, |v| f64::from(v[i]));
     }
 }
 
@@ -60,20 +96,14 @@ pub fn downsample(cloud: &PointCloud, size: f32) -> Result<PointCloud, InvalidVo
         return Err(InvalidVoxelSize(size));
     }
     let inv = 1.0 / size;
-    let mut slot: FxHashMap<VoxelKey, usize> = FxHashMap::default();
-    let mut voxels: Vec<Centroid> = Vec::new();
+    let mut voxels: Cells<Centroid> = Cells::default();
     for (i, p) in cloud.points.iter().enumerate() {
-        let next = voxels.len();
-        let s = *slot.entry(VoxelKey::of(p, inv)).or_insert(next);
-        if s == next {
-            voxels.push(Centroid::default());
-        }
-        voxels[s].add(cloud, i);
+        voxels.at(VoxelKey::of(p, inv)).add(cloud, i);
     }
-    let mut out = PointCloud::with_capacity(voxels.len(), cloud.channels());
-    for v in &voxels {
-        let n = f64::from(v.count);
-        out.points.push(Point3::new((v.sum[0] / n) as f32, (v.sum[1] / n) as f32, (v.sum[2] / n) as f32));
+    let mut out = PointCloud::with_capacity(voxels.cells.len(), cloud.channels());
+    for v in &voxels.cells {
+        let n = f64::from(v.position.count);
+        out.points.push(v.position.mean());
         if let Some(c) = &mut out.intensity {
             c.push((v.intensity / n) as f32);
         }
@@ -95,9 +125,7 @@ pub fn downsample(cloud: &PointCloud, size: f32) -> Result<PointCloud, InvalidVo
 #[derive(Clone, Debug)]
 pub struct VoxelMap {
     inv_size: f32,
-    slot: FxHashMap<VoxelKey, usize>,
-    /// Per voxel, in the order of its first point: the f64 sum of its points and their count.
-    sums: Vec<([f64; 3], u32)>,
+    voxels: Cells<PositionSum>,
 }
 
 impl VoxelMap {
@@ -106,42 +134,29 @@ impl VoxelMap {
         if !(size > 0.0 && size.is_finite()) {
             return Err(InvalidVoxelSize(size));
         }
-        Ok(Self { inv_size: 1.0 / size, slot: FxHashMap::default(), sums: Vec::new() })
+        Ok(Self { inv_size: 1.0 / size, voxels: Cells::default() })
     }
 
     /// Adds `points`; non-finite points are skipped (they have no cell).
     pub fn insert(&mut self, points: impl IntoIterator<Item = Point3<f32>>) {
         for p in points.into_iter().filter(|p| p.coords.iter().all(|c| c.is_finite())) {
-            let next = self.sums.len();
-            let s = *self.slot.entry(VoxelKey::of(&p, self.inv_size)).or_insert(next);
-            if s == next {
-                self.sums.push(([0.0; 3], 0));
-            }
-            let (sum, count) = &mut self.sums[s];
-            sum[0] += f64::from(p.x);
-            sum[1] += f64::from(p.y);
-            sum[2] += f64::from(p.z);
-            *count += 1;
+            self.voxels.at(VoxelKey::of(&p, self.inv_size)).add(&p);
         }
     }
 
     /// Occupied voxels.
     pub fn len(&self) -> usize {
-        self.sums.len()
+        self.voxels.cells.len()
     }
 
     /// True when nothing was inserted.
     pub fn is_empty(&self) -> bool {
-        self.sums.is_empty()
+        self.voxels.cells.is_empty()
     }
 
     /// One point per occupied voxel, its centroid, in the order the voxels were first hit.
     pub fn cloud(&self) -> PointCloud {
-        let centroid = |(sum, n): &([f64; 3], u32)| {
-            let n = f64::from(*n);
-            Point3::new((sum[0] / n) as f32, (sum[1] / n) as f32, (sum[2] / n) as f32)
-        };
-        PointCloud::from_points(self.sums.iter().map(centroid).collect())
+        PointCloud::from_points(self.voxels.cells.iter().map(PositionSum::mean).collect())
     }
 }
 
