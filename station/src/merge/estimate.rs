@@ -149,14 +149,7 @@ pub fn estimate_pair(
             &scale.config.confidence,
         )
     };
-    // VGICP minimises its own cost on voxel means; the truncated mean squared nearest-neighbour distance
-    // between the VGICP input points arbitrates (identical maps: the voxel means pull VGICP a
-    // centimetre off the exact answer, which this catches). Not on the feature surfels: at 0.4 m
-    // their spacing hides decimetres, and the truth can score worse than a transform 12 cm off.
-    let fine_gap =
-        |t: &Isometry3<f64>| mean_squared_gap(map_b.fine.as_ref(), map_a.fine.as_ref(), t, config.refine_voxel);
-    let refined =
-        refine(map_b, map_a, &global.transform, config).filter(|t| fine_gap(t) <= fine_gap(&global.transform));
+    let refined = refine(map_b, map_a, &global.transform, config);
     let transform = refined.unwrap_or(global.transform);
     let transform = finish(map_b, map_a, &transform, config).unwrap_or(transform);
     let scores = score_at(&transform);
@@ -216,8 +209,7 @@ pub fn track_pair(
         (map_a.usable()?, map_b.usable()?)
     };
     let scoring = if previous.coarse { config.coarse.as_ref()? } else { &config.pairwise };
-    let gap = |t: &Isometry3<f64>| mean_squared_gap(map_b.fine.as_ref(), map_a.fine.as_ref(), t, config.refine_voxel);
-    let refined = refine(map_b, map_a, &previous.transform, config).filter(|t| gap(t) <= gap(&previous.transform))?;
+    let refined = refine(map_b, map_a, &previous.transform, config)?;
     let transform = finish(map_b, map_a, &refined, config).unwrap_or(refined);
     let scores = confidence::confidence(
         &source.surfels.points,
@@ -269,14 +261,8 @@ fn ambiguity(alternative: &RunnerUp, inliers: usize, support: f64) -> f64 {
 /// Truncated mean squared distance from the source's VGICP input points (at most
 /// [`GAP_SAMPLES`], evenly spread) to their nearest target point: `mean(min(d², v²))` with `v` the
 /// voxel they were downsampled to. The truncation makes points outside the overlap count the same
-/// under both transforms compared, so that the overlap decides; infinite when a cloud is missing.
-fn mean_squared_gap(
-    source: Option<&GaussianCloud>,
-    target: Option<&GaussianCloud>,
-    t: &Isometry3<f64>,
-    voxel: f32,
-) -> f64 {
-    let (Some(s), Some(q)) = (source, target) else { return f64::INFINITY };
+/// under both transforms compared, so that the overlap decides.
+fn mean_squared_gap(s: &GaussianCloud, q: &GaussianCloud, t: &Isometry3<f64>, voxel: f32) -> f64 {
     let cap = f64::from(voxel).powi(2);
     sampled_mean(s.len(), |i| {
         let p = t * Point3::from(s.points[i]);
@@ -318,7 +304,13 @@ fn mean_squared_plane_gap(source: &GaussianCloud, target: &GaussianCloud, t: &Is
 /// Source points the refinement arbitration measures: enough for a stable mean, cheap per pair.
 const GAP_SAMPLES: usize = 20_000;
 
-/// The VGICP transform from `init`, if it converged nearby; `None` keeps the global estimate.
+/// The VGICP transform from `init`, if it converged nearby and leaves no larger gap between the
+/// maps than `init`; `None` keeps `init`.
+///
+/// VGICP minimises its own cost on voxel means; the truncated mean squared nearest-neighbour
+/// distance between the VGICP input points arbitrates (identical maps: the voxel means pull VGICP a
+/// centimetre off the exact answer, which this catches). Not on the feature surfels: at 0.4 m
+/// their spacing hides decimetres, and the truth can score worse than a transform 12 cm off.
 pub fn refine(
     source: &PreparedMap,
     target: &PreparedMap,
@@ -330,7 +322,8 @@ pub fn refine(
     let moved = pose_error(&result.transform, init);
     let plausible =
         moved.translation_m <= config.max_refine_translation && moved.rotation_deg <= config.max_refine_rotation_deg;
-    (plausible && result.inliers > 0).then_some(result.transform)
+    let gap = |x: &Isometry3<f64>| mean_squared_gap(s, t, x, config.refine_voxel);
+    (plausible && result.inliers > 0 && gap(&result.transform) <= gap(init)).then_some(result.transform)
 }
 
 /// The finishing pass from `init` (see [`super::FinishConfig`]), if configured, converged within
