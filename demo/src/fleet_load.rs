@@ -21,6 +21,7 @@ use edge::memory::{peak_rss_mb, rss_mb};
 use edge::odometry::Keyframe;
 use edge::odometry::stats::Spread;
 use edge::wire::keyframe_message;
+use nalgebra::Isometry3;
 use prost::Message;
 use proto::codec::CodecConfig;
 use proto::{Fleet, GlobalMap, keyexpr};
@@ -126,6 +127,12 @@ pub struct LoadReport {
     pub catch_up_s: f64,
     /// Robots merged in the final map.
     pub merged_robots: usize,
+    /// How far the final map places each merged robot from the truth, metres and degrees (over
+    /// the merged robots but its reference; `None` when it merged no other).
+    pub placement_error: Option<PlacementError>,
+    /// The worst placement error of any published map, streaming ones included: a wrong link
+    /// that was published shows here even when a later merge dropped it.
+    pub worst_published_error: Option<PlacementError>,
     /// Resident memory of the process.
     pub rss_mb: Rss,
 }
@@ -146,6 +153,50 @@ impl Percentiles {
     pub fn of(values: &[f64]) -> Option<Self> {
         let Spread { median, p95, max } = Spread::of(values);
         (!values.is_empty()).then_some(Percentiles { p50: median, p95, max })
+    }
+}
+
+/// Placement errors against the simulator's truth.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct PlacementError {
+    /// Translation error, metres.
+    pub metres: Percentiles,
+    /// Rotation error, degrees.
+    pub degrees: Percentiles,
+}
+
+impl PlacementError {
+    /// Those of `map`'s merged robots against `frames`, each robot's frame in the world; `None`
+    /// when the map merged no robot besides its reference.
+    fn of(map: &GlobalMap, frames: &BTreeMap<u32, Isometry3<f64>>) -> Option<Self> {
+        let reference = frames.get(&map.reference_robot)?;
+        let (metres, degrees): (Vec<f64>, Vec<f64>) = map
+            .robots
+            .iter()
+            .filter(|r| r.status() == proto::MergeStatus::Merged && r.robot != map.reference_robot)
+            .filter_map(|r| {
+                let placed = Isometry3::try_from(r.transform.as_ref()?).ok()?;
+                let truth = reference.inverse() * frames.get(&r.robot)?;
+                let error = placed.inverse() * truth;
+                tracing::debug!(
+                    "map {}: robot {} placed {:.3} m / {:.2} deg from the truth",
+                    map.revision,
+                    r.robot,
+                    error.translation.vector.norm(),
+                    error.rotation.angle().to_degrees()
+                );
+                Some((error.translation.vector.norm(), error.rotation.angle().to_degrees()))
+            })
+            .unzip();
+        Some(PlacementError { metres: Percentiles::of(&metres)?, degrees: Percentiles::of(&degrees)? })
+    }
+
+    /// The larger of two, by their worst translation.
+    fn worse(a: Option<Self>, b: Option<Self>) -> Option<Self> {
+        match (a, b) {
+            (Some(a), Some(b)) => Some(if b.metres.max > a.metres.max { b } else { a }),
+            (a, b) => a.or(b),
+        }
     }
 }
 
@@ -181,17 +232,19 @@ pub enum LoadError {
 pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
     let per_robot = config.keyframes_per_robot()?;
     info!("preparing {per_robot} keyframes for each of {} robots", config.robots);
-    let payloads = tokio::task::spawn_blocking({
+    let Prepared { payloads, frames } = tokio::task::spawn_blocking({
         let config = config.clone();
         move || prepare(&config, per_robot)
     })
     .await
     .map_err(|e| LoadError::Prepare(e.to_string()))??;
+    let frames = Arc::new(frames);
     let bytes: usize = payloads.iter().flatten().map(Vec::len).sum();
     let rig = Rig::start(&config).await?;
     let published = Arc::new(AtomicU64::new(0));
     let (stop, stopped) = oneshot::channel();
-    let observer = tokio::spawn(observe(rig.station.progress(), rig.maps, Arc::clone(&published), stopped));
+    let observer =
+        tokio::spawn(observe(rig.station.progress(), rig.maps, Arc::clone(&published), Arc::clone(&frames), stopped));
     let rss_start = rss_mb();
     info!("publishing for {} s", config.seconds);
     let publishing = publish_all(rig.robots, payloads, &config, &published).await?;
@@ -210,6 +263,7 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
         .global_map
         .as_ref()
         .map_or(0, |m| m.robots.iter().filter(|r| r.status() == proto::MergeStatus::Merged).count());
+    let placement_error = summary.global_map.as_ref().and_then(|m| PlacementError::of(m, &frames));
     Ok(LoadReport {
         robots: config.robots,
         sent,
@@ -224,6 +278,8 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
         unmapped: observed.latencies.unmapped(),
         catch_up_s,
         merged_robots,
+        placement_error,
+        worst_published_error: observed.worst_error,
         rss_mb,
     })
 }
@@ -284,33 +340,51 @@ async fn publish_all(
     Ok(started.elapsed())
 }
 
-/// Every robot's keyframe payloads, in order: simulated scans at their true poses (relative to
-/// the robot's first), voxelised and encoded. Robot `i` beyond the scenario's own replays robot
-/// `i mod n` from `i / n` half-runs later.
-fn prepare(config: &LoadConfig, per_robot: usize) -> Result<Vec<Vec<Vec<u8>>>, LoadError> {
+/// What the robots will publish, and the truth to judge the merge by.
+struct Prepared {
+    /// Per robot, its keyframe payloads in order.
+    payloads: Vec<Vec<Vec<u8>>>,
+    /// Per robot id, its odometry frame in the world.
+    frames: BTreeMap<u32, Isometry3<f64>>,
+}
+
+/// Every robot's keyframe payloads, in order: simulated scans, deskewed, at their true poses
+/// (relative to the robot's first), voxelised and encoded. Robot `i` beyond the scenario's own replays robot
+/// `i mod n` from later in its run: the replays of a robot start evenly spread over the time it
+/// moves, so that none is parked (a parked replay sends one scan over and over, which no robot
+/// does, and two parked at one place are trivially linked).
+fn prepare(config: &LoadConfig, per_robot: usize) -> Result<Prepared, LoadError> {
     let scenario = Scenario::by_name(&config.scenario).map_err(|e| LoadError::Prepare(e.to_string()))?;
     let own = scenario.robots().len();
     let fleet = &config.station.fleet;
-    (0..config.robots)
+    let robots: Vec<(Vec<Vec<u8>>, Isometry3<f64>)> = (0..config.robots)
         .into_par_iter()
         .map(|i| {
             let sim = Simulator::new(scenario.clone(), i % own, SimConfig::default())
                 .map_err(|e| LoadError::Prepare(e.to_string()))?;
-            let offset = (i / own) * sim.frames() / 2;
-            let origin = sim.ground_truth(offset).inverse();
-            (0..per_robot)
+            let replays = config.robots.div_ceil(own);
+            let moving = (sim.trajectory().duration() / sim.config().sensor.period) as usize;
+            let offset = (i / own) * moving / replays;
+            let frame = sim.ground_truth(offset);
+            let origin = frame.inverse();
+            let payloads = (0..per_robot)
                 .map(|k| {
                     let scan = sim.scan(offset + k);
-                    let cloud = cloud::voxel::downsample(&scan.cloud, config.voxel)
+                    // Deskewed as the robot's odometry would: the raw sweep at 2 m/s is smeared by
+                    // up to 20 cm, which no edge sends.
+                    let cloud = cloud::voxel::downsample(&sim.deskewed(&scan), config.voxel)
                         .map_err(|e| LoadError::Prepare(e.to_string()))?;
                     let kf = Keyframe { seq: k as u64, frame: k, pose: origin * scan.ground_truth, cloud };
                     keyframe_message(fleet, i as u32 + 1, &kf, scan.stamp, None, &CodecConfig::default())
                         .map(|m| m.encode_to_vec())
                         .map_err(|e| LoadError::Prepare(e.to_string()))
                 })
-                .collect()
+                .collect::<Result<_, _>>()?;
+            Ok((payloads, frame))
         })
-        .collect()
+        .collect::<Result<_, LoadError>>()?;
+    let frames = robots.iter().enumerate().map(|(i, (_, frame))| (i as u32 + 1, *frame)).collect();
+    Ok(Prepared { payloads: robots.into_iter().map(|(p, _)| p).collect(), frames })
 }
 
 /// Publishes one robot's keyframes at `rate_hz`, blocking under congestion as the edges do.
@@ -348,6 +422,8 @@ struct Observed {
     max_backlog: u64,
     /// Merge jobs waiting at most.
     queue_max: u32,
+    /// The worst placement error of a published map.
+    worst_error: Option<PlacementError>,
 }
 
 impl Observed {
@@ -370,6 +446,7 @@ async fn observe(
     mut progress: watch::Receiver<StationProgress>,
     maps: Subscriber<FifoChannelHandler<Sample>>,
     published: Arc<AtomicU64>,
+    frames: Arc<BTreeMap<u32, Isometry3<f64>>>,
     mut stop: oneshot::Receiver<u64>,
 ) -> Observed {
     let mut seen = Observed::default();
@@ -386,7 +463,10 @@ async fn observe(
                 let at = Instant::now();
                 seen.progress(&progress.borrow_and_update(), at);
                 match GlobalMap::decode(&*sample.payload().to_bytes()) {
-                    Ok(map) => seen.latencies.mapped(&map, at),
+                    Ok(map) => {
+                        seen.latencies.mapped(&map, at);
+                        seen.worst_error = PlacementError::worse(seen.worst_error, PlacementError::of(&map, &frames));
+                    }
                     Err(e) => warn!("cannot decode a global map: {e}"),
                 }
             }
@@ -481,6 +561,12 @@ impl fmt::Display for LoadReport {
             self.unmapped,
             self.catch_up_s
         )?;
+        writeln!(
+            f,
+            "placement against the truth: {} in the final map, {} at worst in a published one",
+            placement(self.placement_error),
+            placement(self.worst_published_error)
+        )?;
         let mb = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.0} MB"));
         write!(
             f,
@@ -490,6 +576,13 @@ impl fmt::Display for LoadReport {
             mb(self.rss_mb.peak)
         )
     }
+}
+
+/// `max … m / … deg (p50 … m)`, or `none`.
+fn placement(e: Option<PlacementError>) -> String {
+    e.map_or("none".into(), |e| {
+        format!("max {:.3} m / {:.2} deg (median {:.3} m)", e.metres.max, e.degrees.max, e.metres.p50)
+    })
 }
 
 /// `p50 … / p95 … / max … ms`, or `none`.
@@ -506,6 +599,40 @@ mod tests {
         let robots =
             placements.iter().map(|&(robot, keyframes)| RobotPlacement { robot, keyframes, ..Default::default() });
         GlobalMap { revision, robots: robots.collect(), ..Default::default() }
+    }
+
+    #[test]
+    fn placement_errors_are_measured_against_the_reference_robots_truth() {
+        use nalgebra::{Translation3, UnitQuaternion, Vector3};
+        let frames = BTreeMap::from([
+            (1, Isometry3::new(Vector3::new(10.0, 0.0, 0.0), Vector3::z() * 0.5)),
+            (2, Isometry3::new(Vector3::new(0.0, 5.0, 1.0), Vector3::z() * -1.0)),
+            (3, Isometry3::new(Vector3::new(3.0, 3.0, 0.0), Vector3::z() * 2.0)),
+        ]);
+        let truth = |r: u32| frames[&1].inverse() * frames[&r];
+        let off =
+            Isometry3::from_parts(Translation3::new(0.3, 0.0, 0.4), UnitQuaternion::from_euler_angles(0.0, 0.0, 0.02));
+        let placed = |robot: u32, transform: Isometry3<f64>, merged: bool| RobotPlacement {
+            robot,
+            transform: Some(transform.into()),
+            status: if merged { proto::MergeStatus::Merged } else { proto::MergeStatus::Unmerged } as i32,
+            ..Default::default()
+        };
+        let map = GlobalMap {
+            reference_robot: 1,
+            robots: vec![
+                placed(1, Isometry3::identity(), true),
+                placed(2, truth(2) * off, true),
+                placed(3, Isometry3::identity(), false),
+            ],
+            ..Default::default()
+        };
+        let e = PlacementError::of(&map, &frames).expect("robot 2 is merged");
+        assert!((e.metres.max - 0.5).abs() < 1e-9, "{e:?}");
+        assert!((e.degrees.max - 0.02f64.to_degrees()).abs() < 1e-9, "{e:?}");
+        let alone = GlobalMap { robots: vec![placed(1, Isometry3::identity(), true)], ..map.clone() };
+        assert_eq!(PlacementError::of(&alone, &frames), None);
+        assert_eq!(PlacementError::worse(Some(e), None), Some(e));
     }
 
     #[test]

@@ -183,21 +183,34 @@ impl Simulator {
         let to_map = self.pose_at(0.0).inverse();
         let sweeps = frames
             .par_iter()
-            .map(|&f| {
-                let scan = self.scan(f);
-                let times = scan.cloud.time.as_deref().unwrap_or_default();
-                // Points of one column share a firing time: one pose per column.
-                let mut poses: FxHashMap<u32, Isometry3<f32>> = FxHashMap::default();
-                let points = scan.cloud.points.iter().zip(times).map(|(p, &t)| {
-                    let pose = poses
-                        .entry(t.to_bits())
-                        .or_insert_with(|| (to_map * self.pose_at(scan.stamp + f64::from(t))).cast::<f32>());
-                    *pose * p
-                });
-                downsample(&PointCloud::from_points(points.collect()), voxel)
-            })
+            .map(|&f| downsample(&PointCloud::from_points(self.undistorted(&self.scan(f), &to_map)), voxel))
             .collect::<Result<Vec<PointCloud>, _>>()?;
         downsample(&PointCloud::from_points(sweeps.into_iter().flat_map(|s| s.points).collect()), voxel)
+    }
+
+    /// `scan`'s points free of motion distortion, in the sensor frame at the end of its sweep (the
+    /// frame of [`Scan::ground_truth`]): what a perfect deskewing gives.
+    pub fn deskewed(&self, scan: &Scan) -> PointCloud {
+        PointCloud::from_points(self.undistorted(scan, &scan.ground_truth.inverse()))
+    }
+
+    /// `scan`'s points, each moved from the sensor pose at its firing time into the frame that
+    /// `to_frame` maps the world into.
+    fn undistorted(&self, scan: &Scan, to_frame: &Isometry3<f64>) -> Vec<Point3<f32>> {
+        let times = scan.cloud.time.as_deref().unwrap_or_default();
+        // Points of one column share a firing time: one pose per column.
+        let mut poses: FxHashMap<u32, Isometry3<f32>> = FxHashMap::default();
+        scan.cloud
+            .points
+            .iter()
+            .zip(times)
+            .map(|(p, &t)| {
+                let pose = poses
+                    .entry(t.to_bits())
+                    .or_insert_with(|| (to_frame * self.pose_at(scan.stamp + f64::from(t))).cast::<f32>());
+                *pose * p
+            })
+            .collect()
     }
 
     /// Fires every beam of one column from the sensor pose at the column's firing time.

@@ -237,6 +237,21 @@ fn per_point_poses_undo_the_skew_and_a_single_pose_does_not() {
     assert!(mean(&last).abs() < 0.005, "skew at the sweep end {}", mean(&last));
 }
 
+#[test]
+fn a_deskewed_sweep_lies_on_the_room_at_its_ground_truth_pose() {
+    let (v, sigma) = (2.0, 0.01);
+    let sim = straight_run(v, sigma);
+    let scan = sim.scan(100);
+    let deskewed = sim.deskewed(&scan);
+    assert_eq!(deskewed.len(), scan.cloud.len());
+    let rms = |c: &PointCloud, pose: &Isometry3<f64>| {
+        let r: Vec<f64> = c.points.iter().map(|p| room_residual(&(pose * p.cast::<f64>()))).collect();
+        (r.iter().map(|x| x * x).sum::<f64>() / r.len() as f64).sqrt()
+    };
+    assert!(rms(&deskewed, &scan.ground_truth) < 1.5 * sigma, "deskewed: {} m rms", rms(&deskewed, &scan.ground_truth));
+    assert!(rms(&scan.cloud, &scan.ground_truth) > 3.0 * sigma, "raw: {} m rms", rms(&scan.cloud, &scan.ground_truth));
+}
+
 /// Measured minus true range of every point, the truth cast without noise from the pose at the
 /// point's own time along the point's own direction.
 fn range_residuals(sim: &Simulator, frame: usize) -> Vec<f64> {
