@@ -96,12 +96,30 @@ fn a_settled_merge_searches_again_what_was_tracked_or_grew() {
         }
         while merger.merge().unwrap().pending > 0 {}
     }
+    // Each map grows by 5 % more (points 1 cm beside its own): too little for a streaming merge to
+    // prepare it again, but a settling merge prepares every map that grew.
+    for (id, maps) in fleet.maps.iter().enumerate() {
+        let mut grown = maps[2].clone();
+        let extra: Vec<_> =
+            grown.points.iter().step_by(20).map(|p| p + nalgebra::Vector3::new(0.01, 0.0, 0.0)).collect();
+        grown.points.extend(extra);
+        merger.grow(id, 3, grown);
+    }
+    let streaming = merger.stats();
+    merger.merge().unwrap();
+    assert_eq!(merger.stats().preparations, streaming.preparations, "5 % growth waits for settling");
     let before = merger.stats();
     merger.settle();
     let mut settled = merger.merge().unwrap();
+    // Four grown maps, two prepared per merge: the first settling merge leaves work.
+    assert_eq!(merger.stats().preparations - before.preparations, config.max_refreshes, "{:?}", merger.stats());
+    assert!(settled.pending > 0 && !settled.settled);
     while settled.pending > 0 {
+        merger.settle();
         settled = merger.merge().unwrap();
     }
+    assert!(settled.settled);
+    assert_eq!(merger.stats().preparations - before.preparations, 4, "each grown map prepared once");
     assert!(merger.stats().pair_estimates > before.pair_estimates, "{before:?} -> {:?}", merger.stats());
     assert_eq!(settled.edges().filter(|e| e.tracked).count(), 0, "every edge searched on the final maps");
     assert_eq!(settled.merged(), 4);

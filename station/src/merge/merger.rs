@@ -172,9 +172,10 @@ impl Merger {
 
     /// Makes the next merge exact rather than quick, for when the robots have gone quiet: every map
     /// that grew at all is prepared again and every pair whose maps changed, or whose edge was
-    /// tracked, is searched again with every check (still at most [`MergeConfig::max_searches`]
-    /// per merge; the report's `pending` says when more merges are needed). A fleet at rest thus
-    /// gets the placements a from-scratch merge of its final maps would give.
+    /// tracked, is searched again with every check (still at most [`MergeConfig::max_refreshes`]
+    /// maps and [`MergeConfig::max_searches`] searches per merge; the report's `pending` says
+    /// when more settling merges are needed). A fleet at rest thus gets the placements a
+    /// from-scratch merge of its final maps would give.
     pub fn settle(&mut self) {
         self.settling = true;
     }
@@ -194,13 +195,13 @@ impl Merger {
         let prepared: Vec<Arc<PreparedMap>> =
             self.maps.values().map(|s| Arc::clone(&s.prepared.as_ref().expect("all maps are prepared").map)).collect();
         let reference = self.reference_position(&ids, &prepared)?;
-        let ((pairs, deferred_pairs), pairs_time) = timed(|| self.estimate_pairs(&ids, &prepared));
+        let ((pairs, deferred_pairs), pairs_time) = timed(|| self.estimate_pairs(&ids, &prepared, &deferred_maps));
         let (layout, graph) = timed(|| layout(&prepared, &pairs, reference));
         let maps = self.map_reports(&ids, &prepared, &pairs, &layout.chained);
         let clouds: Vec<Arc<PointCloud>> = self.maps.values().map(|s| Arc::clone(&s.cloud)).collect();
         let ((global_map, origins), assemble) = timed(|| assemble(&clouds, &maps, self.config.output_voxel));
         let timing = MergeTiming { features, pairs: pairs_time, graph, assemble, total: watch.elapsed() };
-        let pending = deferred_maps + deferred_pairs;
+        let pending = deferred_maps.len() + deferred_pairs;
         let settled = std::mem::take(&mut self.settling) && pending == 0;
         Ok(MergeReport {
             maps,
@@ -216,9 +217,10 @@ impl Merger {
     }
 
     /// Prepares, in parallel, every map that must be (new, reshaped) and up to
-    /// [`MergeConfig::max_refreshes`] of the grown ones, the most grown first; returns how many
-    /// grown maps wait for a later merge.
-    fn prepare_stale(&mut self) -> usize {
+    /// [`MergeConfig::max_refreshes`] of the grown ones, the most grown first, settling or not (a
+    /// settling merge that prepared every map at once took 19 s at 16 robots); returns the ids of
+    /// the grown maps that wait for a later merge.
+    fn prepare_stale(&mut self) -> Vec<usize> {
         let config = &self.config;
         let mut required = Vec::new();
         let mut grown = Vec::new();
@@ -232,9 +234,8 @@ impl Merger {
             }
         }
         grown.sort_by(|a, b| b.1.total_cmp(&a.1));
-        let budget = if self.settling { grown.len() } else { config.max_refreshes };
-        let deferred = grown.len().saturating_sub(budget);
-        required.extend(grown.iter().take(budget).map(|&(id, _)| id));
+        let deferred: Vec<usize> = grown.iter().skip(config.max_refreshes).map(|&(id, _)| id).collect();
+        required.extend(grown.iter().take(config.max_refreshes).map(|&(id, _)| id));
         self.stats.preparations += required.len();
         let fresh: Vec<(usize, PreparedMap)> = required
             .par_iter()
@@ -279,8 +280,14 @@ impl Merger {
 
     /// Verdicts of all pairs of usable maps: cached ones reused, links tracked, and at most
     /// [`MergeConfig::max_searches`] global registrations, all in parallel; with the number of
-    /// pairs left waiting for a search.
-    fn estimate_pairs(&mut self, ids: &[usize], prepared: &[Arc<PreparedMap>]) -> (Vec<PairReport>, usize) {
+    /// pairs left waiting for a search. While settling, a pair with a map still waiting to be
+    /// prepared (`deferred`, ids) waits too: searching it now would only be done again.
+    fn estimate_pairs(
+        &mut self,
+        ids: &[usize],
+        prepared: &[Arc<PreparedMap>],
+        deferred: &[usize],
+    ) -> (Vec<PairReport>, usize) {
         let generation = |p: usize| self.maps[&ids[p]].prepared.as_ref().map_or(0, |x| x.generation);
         let usable: Vec<usize> = (0..ids.len()).filter(|&p| prepared[p].usable().is_some()).collect();
         let all: Vec<(usize, usize)> =
@@ -291,6 +298,10 @@ impl Merger {
             all.iter().map(|&p| self.work((ids[p.0], ids[p.1]), generations(p), points(p))).collect();
         let tracks: Vec<(usize, usize)> = select(&all, &work, PairWork::Track);
         let mut searches: Vec<(usize, usize)> = select(&all, &work, PairWork::Search);
+        let waits =
+            |&(a, b): &(usize, usize)| self.settling && (deferred.contains(&ids[a]) || deferred.contains(&ids[b]));
+        let waiting = searches.iter().filter(|p| waits(p)).count();
+        searches.retain(|p| !waits(p));
         let waited = |&(a, b): &(usize, usize)| self.pairs.get(&(ids[a], ids[b])).map_or(0, |c| c.searched_in);
         searches.sort_by_key(waited);
         let config = &self.config;
@@ -315,7 +326,7 @@ impl Merger {
                 None => searches.insert(0, (a, b)),
             }
         }
-        let deferred = searches.split_off(searches.len().min(config.max_searches));
+        let over_budget = searches.split_off(searches.len().min(config.max_searches));
         let found: Vec<PairVerdict> =
             searches.par_iter().map(|&(a, b)| estimate_pair((a, &prepared[a]), (b, &prepared[b]), config)).collect();
         self.stats.pair_estimates += searches.len();
@@ -338,7 +349,7 @@ impl Merger {
                 PairReport { a, b, verdict: with_positions(verdict, a, b), cached: !done.contains(&(a, b)) }
             })
             .collect();
-        (reports, deferred.len())
+        (reports, over_budget.len() + waiting)
     }
 
     /// Per-map reports from the chained tree.
