@@ -17,6 +17,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
+use cloud::se3::{PoseError, pose_error};
 use edge::memory::{peak_rss_mb, rss_mb};
 use edge::odometry::Keyframe;
 use edge::odometry::stats::Spread;
@@ -177,15 +178,13 @@ impl PlacementError {
             .filter_map(|r| {
                 let placed = Isometry3::try_from(r.transform.as_ref()?).ok()?;
                 let truth = reference.inverse() * frames.get(&r.robot)?;
-                let error = placed.inverse() * truth;
+                let PoseError { translation_m, rotation_deg } = pose_error(&placed, &truth);
                 tracing::debug!(
-                    "map {}: robot {} placed {:.3} m / {:.2} deg from the truth",
+                    "map {}: robot {} placed {translation_m:.3} m / {rotation_deg:.2} deg from the truth",
                     map.revision,
-                    r.robot,
-                    error.translation.vector.norm(),
-                    error.rotation.angle().to_degrees()
+                    r.robot
                 );
-                Some((error.translation.vector.norm(), error.rotation.angle().to_degrees()))
+                Some((translation_m, rotation_deg))
             })
             .unzip();
         Some(PlacementError { metres: Percentiles::of(&metres)?, degrees: Percentiles::of(&degrees)? })

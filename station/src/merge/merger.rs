@@ -234,8 +234,9 @@ impl Merger {
             }
         }
         grown.sort_by(|a, b| b.1.total_cmp(&a.1));
-        let deferred: Vec<usize> = grown.iter().skip(config.max_refreshes).map(|&(id, _)| id).collect();
-        required.extend(grown.iter().take(config.max_refreshes).map(|&(id, _)| id));
+        let (now, later) = grown.split_at(grown.len().min(config.max_refreshes));
+        required.extend(now.iter().map(|&(id, _)| id));
+        let deferred: Vec<usize> = later.iter().map(|&(id, _)| id).collect();
         self.stats.preparations += required.len();
         let fresh: Vec<(usize, PreparedMap)> = required
             .par_iter()
@@ -297,11 +298,10 @@ impl Merger {
         let work: Vec<PairWork> =
             all.iter().map(|&p| self.work((ids[p.0], ids[p.1]), generations(p), points(p))).collect();
         let tracks: Vec<(usize, usize)> = select(&all, &work, PairWork::Track);
-        let mut searches: Vec<(usize, usize)> = select(&all, &work, PairWork::Search);
         let waits =
             |&(a, b): &(usize, usize)| self.settling && (deferred.contains(&ids[a]) || deferred.contains(&ids[b]));
-        let waiting = searches.iter().filter(|p| waits(p)).count();
-        searches.retain(|p| !waits(p));
+        let (waiting, mut searches): (Vec<_>, Vec<_>) =
+            select(&all, &work, PairWork::Search).into_iter().partition(waits);
         let waited = |&(a, b): &(usize, usize)| self.pairs.get(&(ids[a], ids[b])).map_or(0, |c| c.searched_in);
         searches.sort_by_key(waited);
         let config = &self.config;
@@ -349,7 +349,7 @@ impl Merger {
                 PairReport { a, b, verdict: with_positions(verdict, a, b), cached: !done.contains(&(a, b)) }
             })
             .collect();
-        (reports, over_budget.len() + waiting)
+        (reports, over_budget.len() + waiting.len())
     }
 
     /// Per-map reports from the chained tree.

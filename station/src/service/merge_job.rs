@@ -71,9 +71,6 @@ pub struct MergeOutcome {
     pub elapsed: Duration,
     /// The global map's points as merged, before the codec, with their robots (for the live view).
     pub cloud: MapCloud,
-    /// The merge settled (see [`crate::merge::MergeReport::settled`]): no other is needed until
-    /// something changes.
-    pub settled: bool,
 }
 
 /// The global map's points with the robot each came from.
@@ -134,7 +131,7 @@ impl MergeWorker {
         let basis = robots.iter().map(|r| (r.robot, r.basis)).collect();
         // Map ids are robot ids (see `RobotSnapshot::robot`).
         let cloud = MapCloud { robots: report.origins.iter().map(|&id| id as u32).collect(), cloud: report.global_map };
-        Ok(MergeOutcome { map, bytes, basis, elapsed: clock.elapsed(), cloud, settled: report.settled })
+        Ok(MergeOutcome { map, bytes, basis, elapsed: clock.elapsed(), cloud })
     }
 
     /// Brings robot `r`'s local map up to its snapshot: new keyframes are added to it (the map

@@ -490,7 +490,7 @@ impl Core {
                         // Merged while robots streamed, or work left over (searches over the
                         // budget): merge again, changes or not, so that the fleet at rest gets a
                         // settled map (see `Merger::settle`).
-                        if !outcome.settled {
+                        if !outcome.map.settled {
                             self.queue.changed(Instant::now());
                         }
                         self.publish_map(outcome, publisher).await
@@ -506,7 +506,7 @@ impl Core {
     }
 
     async fn publish_map(&mut self, outcome: MergeOutcome, publisher: &Publisher<'static>) {
-        let MergeOutcome { map, bytes, basis, elapsed, cloud, .. } = outcome;
+        let MergeOutcome { map, bytes, basis, elapsed, cloud } = outcome;
         let ms = cloud::stopwatch::millis(elapsed);
         let merged = map.robots.iter().filter(|r| r.status == proto::MergeStatus::Merged as i32).count();
         info!("global map revision {}: {merged} of {} robots merged ({ms:.0} ms)", map.revision, map.robots.len());
