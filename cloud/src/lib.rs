@@ -19,6 +19,7 @@ pub mod registration;
 pub mod se3;
 pub mod stopwatch;
 pub mod trajectory;
+pub mod visibility;
 pub mod voxel;
 
 pub use point_cloud::{Channels, PointCloud};

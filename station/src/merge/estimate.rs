@@ -4,6 +4,7 @@ use cloud::eigen3::symmetric_eigen3;
 use cloud::global::polish;
 use cloud::registration::{GaussianCloud, Method, Target, align_gaussians};
 use cloud::se3::pose_error;
+use cloud::visibility::{Acceptance, acceptance};
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
@@ -42,6 +43,9 @@ pub struct Edge {
     /// The strongest distinct alternative against the chosen transform: the smaller of its shares
     /// of inliers and of upright support (0: none found; see [`super::ambiguity`]).
     pub ambiguity: f64,
+    /// How the placement fares against the free space the robots saw (`None` when a map came
+    /// without views; see [`cloud::visibility`]).
+    pub acceptance: Option<Acceptance>,
 }
 
 /// Why a pair gave no edge.
@@ -63,6 +67,20 @@ pub enum PairRejection {
         /// Score at the final transform.
         score: f64,
         /// The threshold.
+        needed: f64,
+    },
+    /// The placement puts one map's surfaces where the other robot's sensor saw through: a
+    /// look-alike place, not the same one.
+    #[error(
+        "contradicts what the robots saw: acceptance {:.2} ({agree} surfels agree, {conflict} lie in seen free space), need {needed:.2}",
+        *agree as f64 / (agree + conflict).max(1) as f64
+    )]
+    Contradicted {
+        /// Sampled surfels some view has a return at.
+        agree: usize,
+        /// Sampled surfels that lie in free space a view saw through.
+        conflict: usize,
+        /// [`MergeConfig::min_acceptance`].
         needed: f64,
     },
     /// A distinct transform has nearly as much support: repetitive structure, no unique answer.
@@ -157,6 +175,14 @@ pub fn estimate_pair(
     if scores.score < config.min_confidence {
         return reject(PairRejection::LowConfidence { score: scores.score, needed: config.min_confidence });
     }
+    let acceptance = free_space_acceptance(map_b, map_a, &transform, config);
+    if let Some(a) = acceptance.filter(|a| a.index() < config.min_acceptance) {
+        return reject(PairRejection::Contradicted {
+            agree: a.agree,
+            conflict: a.conflict,
+            needed: config.min_acceptance,
+        });
+    }
     let inliers = global.inliers.len();
     let support = upright_support(
         &scale.source.surfels,
@@ -183,7 +209,27 @@ pub fn estimate_pair(
         coarse,
         tracked: false,
         ambiguity,
+        acceptance,
     })
+}
+
+/// Birk & Carpin's acceptance of `transform` (maps `source` into `target`): each map's surfels
+/// judged against the other's views, tallied together; `None` unless both maps have views.
+fn free_space_acceptance(
+    source: &PreparedMap,
+    target: &PreparedMap,
+    transform: &Isometry3<f64>,
+    config: &MergeConfig,
+) -> Option<Acceptance> {
+    let (source_views, target_views) = (source.views.as_ref()?, target.views.as_ref()?);
+    let (s, t) = (source.usable()?, target.usable()?);
+    let forward = transform.cast::<f32>();
+    let (n, v) = (config.acceptance_samples, &config.visibility);
+    let (into_target, into_source) = rayon::join(
+        || acceptance(&s.surfels.points, &forward, target_views, n, v),
+        || acceptance(&t.surfels.points, &forward.inverse(), source_views, n, v),
+    );
+    Some(into_target + into_source)
 }
 
 /// Follows a linked pair as its maps grow: VGICP from the previous edge's transform (and the

@@ -186,7 +186,10 @@ pub fn align_pair(
 }
 
 fn align_global(source: &PointCloud, target: &PointCloud, config: &MergeConfig) -> Result<Alignment, FilesError> {
-    let (s, t) = rayon::join(|| PreparedMap::new(source.clone(), config), || PreparedMap::new(target.clone(), config));
+    let (s, t) = rayon::join(
+        || PreparedMap::new(source.clone(), None, config),
+        || PreparedMap::new(target.clone(), None, config),
+    );
     for (map, which) in [(&s, "source"), (&t, "target")] {
         if let Err(reason) = &map.features {
             return Err(FilesError::Unusable { which, reason: reason.clone() });

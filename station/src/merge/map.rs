@@ -1,7 +1,10 @@
 //! Step 1 — everything about one map that does not depend on the others, computed once per revision.
 
+use std::sync::Arc;
+
 use cloud::PointCloud;
 use cloud::registration::{GaussianCloud, MIN_POINTS};
+use cloud::visibility::Views;
 use cloud::voxel::downsample;
 
 use super::MergeConfig;
@@ -22,11 +25,15 @@ pub struct PreparedMap {
     pub fine: Option<GaussianCloud>,
     /// The map at [`super::FinishConfig::voxel`] with covariances, when a finishing pass is configured.
     pub finish: Option<GaussianCloud>,
+    /// What the robot's sensor saw, keyframe by keyframe, when the map came with it
+    /// ([`super::Merger::set_views`]): the free space another map placed here must respect.
+    pub views: Option<Arc<Views>>,
 }
 
 impl PreparedMap {
-    /// Drops non-finite points, then computes the features and the VGICP Gaussians concurrently.
-    pub fn new(mut cloud: PointCloud, config: &MergeConfig) -> Self {
+    /// Drops non-finite points, then computes the features and the VGICP Gaussians concurrently;
+    /// `views` are the map's keyframe views, if known.
+    pub fn new(mut cloud: PointCloud, views: Option<Arc<Views>>, config: &MergeConfig) -> Self {
         let dropped_non_finite = cloud.retain_finite();
         let ((features, coarse), (fine, finish)) = rayon::join(
             || {
@@ -42,7 +49,7 @@ impl PreparedMap {
                 )
             },
         );
-        Self { points: cloud.len(), dropped_non_finite, features, coarse, fine, finish }
+        Self { points: cloud.len(), dropped_non_finite, features, coarse, fine, finish, views }
     }
 
     /// The features if the map is usable.

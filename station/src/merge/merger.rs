@@ -15,6 +15,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use cloud::stopwatch::{Stopwatch, timed};
+use cloud::visibility::Views;
 use cloud::{Channels, PointCloud};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
@@ -35,6 +36,8 @@ struct Slot {
     prepared: Option<Preparation>,
     /// The map changed other than by growing since it was prepared.
     reshaped: bool,
+    /// What the map's sensor saw, if given: taken into the next preparation.
+    views: Option<Arc<Views>>,
 }
 
 /// A map's preparation and what it was made from.
@@ -162,11 +165,22 @@ impl Merger {
                     dropped_non_finite,
                     prepared: slot.prepared.take(),
                     reshaped: slot.reshaped || reshaped,
+                    views: slot.views.take(),
                 }
             }
             None => {
-                self.maps.insert(id, Slot { revision, cloud, dropped_non_finite, prepared: None, reshaped: false });
+                let slot = Slot { revision, cloud, dropped_non_finite, prepared: None, reshaped: false, views: None };
+                self.maps.insert(id, slot);
             }
+        }
+    }
+
+    /// Gives map `id` (set before) the views its sensor saw, in the frame of its current cloud: the
+    /// free-space check of [`super::estimate_pair`] uses them from the map's next preparation on. A
+    /// map without views is merged without that check.
+    pub fn set_views(&mut self, id: usize, views: Arc<Views>) {
+        if let Some(slot) = self.maps.get_mut(&id) {
+            slot.views = Some(views);
         }
     }
 
@@ -240,7 +254,10 @@ impl Merger {
         self.stats.preparations += required.len();
         let fresh: Vec<(usize, PreparedMap)> = required
             .par_iter()
-            .map(|id| (*id, PreparedMap::new(PointCloud::clone(&self.maps[id].cloud), config)))
+            .map(|id| {
+                let slot = &self.maps[id];
+                (*id, PreparedMap::new(PointCloud::clone(&slot.cloud), slot.views.clone(), config))
+            })
             .collect();
         for (id, map) in fresh {
             let slot = self.maps.get_mut(&id).expect("prepared maps exist");

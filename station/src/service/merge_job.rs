@@ -6,11 +6,13 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use cloud::PointCloud;
+use cloud::visibility::{RangeImage, View, Views};
 use cloud::voxel::VoxelMap;
 use nalgebra::Isometry3;
 use prost::Message;
 use proto::codec::{self, CodecConfig};
 use proto::{CompressedCloud, Fleet, GlobalMap, MergeEdge, MergeStatus, RobotPlacement, Timestamp};
+use rayon::prelude::*;
 use rustc_hash::FxHashSet;
 
 use super::fleet_state::{Basis, FleetState};
@@ -98,6 +100,8 @@ pub struct MergeWorker {
     merger: Merger,
     /// Per robot, the local map given to the merger.
     maps: BTreeMap<u32, LocalMap>,
+    /// Per robot, each keyframe's range image (sensor frame: new poses only move it).
+    images: BTreeMap<u32, BTreeMap<u64, Arc<RangeImage>>>,
     voxel: f32,
 }
 
@@ -105,7 +109,7 @@ impl MergeWorker {
     /// A worker with an empty merger.
     pub fn new(config: MergeConfig) -> Result<Self, MergeError> {
         let voxel = local_map_voxel(&config);
-        Ok(Self { merger: Merger::new(config)?, maps: BTreeMap::new(), voxel })
+        Ok(Self { merger: Merger::new(config)?, maps: BTreeMap::new(), images: BTreeMap::new(), voxel })
     }
 
     /// Merges the robots' current maps into global map `revision` of `fleet`; `settle` when the
@@ -162,6 +166,28 @@ impl MergeWorker {
         } else {
             self.merger.grow(id, r.revision, local.map.cloud());
         }
+        let views = self.views(r);
+        self.merger.set_views(id, Arc::new(views));
+    }
+
+    /// Robot `r`'s keyframes as its sensor saw them, at their current poses; range images are made
+    /// once per keyframe, in parallel.
+    fn views(&mut self, r: &RobotSnapshot) -> Views {
+        let images = self.images.entry(r.robot).or_default();
+        let config = &self.merger.config().visibility;
+        let fresh: Vec<(u64, Arc<RangeImage>)> = r
+            .keyframes
+            .par_iter()
+            .filter(|kf| !images.contains_key(&kf.seq))
+            .map(|kf| (kf.seq, Arc::new(RangeImage::new(&kf.cloud.points, config))))
+            .collect();
+        images.extend(fresh);
+        let views = r
+            .keyframes
+            .iter()
+            .map(|kf| View { pose: kf.pose.cast::<f32>(), image: Arc::clone(&images[&kf.seq]) })
+            .collect();
+        Views::new(views)
     }
 }
 
@@ -171,11 +197,17 @@ fn log_report(report: &MergeReport) {
     for pair in report.pairs.iter().filter(|p| !p.cached) {
         match &pair.verdict {
             PairVerdict::Edge(e) => tracing::info!(
-                "robots {} and {}: edge, confidence {:.3}, {} inliers",
+                "robots {} and {}: edge, confidence {:.3}, {} inliers, acceptance {}",
                 id(pair.a),
                 id(pair.b),
                 e.confidence.score,
-                e.inliers
+                e.inliers,
+                e.acceptance.map_or("unchecked".to_string(), |a| format!(
+                    "{:.2} ({} agree, {} conflict)",
+                    a.index(),
+                    a.agree,
+                    a.conflict
+                ))
             ),
             PairVerdict::Rejected { reason, .. } => {
                 tracing::info!("robots {} and {}: no edge ({reason})", id(pair.a), id(pair.b))
