@@ -67,6 +67,25 @@ impl VisibilityConfig {
     pub fn indoor() -> Self {
         Self { margin: 0.5, max_range: 30.0, ..Self::outdoor() }
     }
+
+    /// Checks every setting: counts positive, angles and distances positive and finite.
+    pub fn validate(&self) -> Result<(), &'static str> {
+        let positive = |v: f32| v > 0.0 && v.is_finite();
+        let ok = self.azimuth_bins > 0
+            && self.views_per_point > 0
+            && positive(self.elevation_bin_deg)
+            && self.ring_gap_deg >= 0.0
+            && self.ring_gap_deg.is_finite()
+            && positive(self.margin)
+            && positive(self.max_range);
+        if ok {
+            Ok(())
+        } else {
+            Err(
+                "visibility: azimuth_bins and views_per_point must be positive, elevation_bin_deg, margin and max_range positive and finite, ring_gap_deg finite and not negative",
+            )
+        }
+    }
 }
 
 impl Default for VisibilityConfig {
@@ -98,8 +117,11 @@ pub struct RangeImage {
 }
 
 impl RangeImage {
-    /// The image of `points` (sensor frame); points at the origin or not finite are skipped.
+    /// The image of `points` (sensor frame); points at the origin or not finite are skipped. A
+    /// configuration that fails [`VisibilityConfig::validate`] gives an image that sees nothing (no
+    /// rows: no bin is ever looked up).
     pub fn new(points: &[Point3<f32>], config: &VisibilityConfig) -> Self {
+        let points = if config.validate().is_ok() { points } else { &[] };
         let elevation_bin = config.elevation_bin_deg.to_radians();
         let polar: Vec<(f32, f32, f32)> = points.iter().filter_map(polar).collect();
         let min_elevation = polar.iter().map(|p| p.1).fold(f32::INFINITY, f32::min);
@@ -185,7 +207,7 @@ impl RangeImage {
 /// when not finite.
 fn polar(p: &Point3<f32>) -> Option<(f32, f32, f32)> {
     let range = p.coords.norm();
-    (range.is_finite() && range > 1e-3).then(|| (p.y.atan2(p.x), (p.z / range).asin(), range))
+    (range.is_finite() && range > 1e-3).then(|| (p.y.atan2(p.x), (p.z / range).clamp(-1.0, 1.0).asin(), range))
 }
 
 /// What a view says of a point.
@@ -269,6 +291,13 @@ impl Acceptance {
     pub fn index(&self) -> f64 {
         let decided = self.agree + self.conflict;
         if decided == 0 { 1.0 } else { self.agree as f64 / decided as f64 }
+    }
+}
+
+impl std::fmt::Display for Acceptance {
+    /// `0.97 (1200 agree, 37 conflict)`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:.2} ({} agree, {} conflict)", self.index(), self.agree, self.conflict)
     }
 }
 
@@ -415,5 +444,10 @@ mod tests {
         let empty = RangeImage::new(&[], &config);
         assert_eq!(empty.classify(&Point3::new(1.0, 0.0, 0.0), 0.5), Seen::Unknown);
         assert_eq!(empty.bytes(), 0);
+        // An invalid configuration is refused by validate and sees nothing, without a panic.
+        let bad = VisibilityConfig { azimuth_bins: 0, elevation_bin_deg: 0.0, ..config };
+        assert!(bad.validate().is_err());
+        let blind = RangeImage::new(&[Point3::new(5.0, 0.0, 0.0)], &bad);
+        assert_eq!(blind.classify(&Point3::new(1.0, 0.0, 0.0), 0.5), Seen::Unknown);
     }
 }

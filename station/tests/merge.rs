@@ -251,6 +251,12 @@ fn degenerate_inputs_to_merge() {
     let finish = station::merge::FinishConfig { max_rotation_deg: f64::NAN, ..station::merge::FinishConfig::outdoor() };
     let bad = MergeConfig { finish: Some(finish), ..MergeConfig::outdoor() };
     assert!(matches!(merge(&maps, &bad), Err(MergeError::Config(_))));
+    let bad = MergeConfig { min_acceptance: 1.5, ..MergeConfig::outdoor() };
+    assert!(matches!(merge(&maps, &bad), Err(MergeError::Config(_))));
+    let visibility =
+        cloud::visibility::VisibilityConfig { margin: -1.0, ..cloud::visibility::VisibilityConfig::outdoor() };
+    let bad = MergeConfig { visibility, ..MergeConfig::outdoor() };
+    assert!(matches!(merge(&maps, &bad), Err(MergeError::Config(_))));
 }
 
 /// The station's live preset (`emr-station run` default: 0.4 m features, which whole-building maps

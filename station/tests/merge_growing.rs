@@ -3,11 +3,13 @@
 //! published on the way is checked against the simulator's truth.
 
 use cloud::PointCloud;
-use cloud::se3::pose_error;
 use nalgebra::Isometry3;
 use sim::{Scenario, SimConfig, Simulator};
 use station::merge::merger::MergerStats;
 use station::merge::{MergeConfig, MergeReport, Merger};
+
+mod truth;
+use truth::worst_error;
 
 /// One robot's exact map after each of `steps` equal shares of its run, every `stride`-th sweep.
 fn growing_maps(sim: &Simulator, steps: usize, stride: usize, voxel: f32) -> Vec<PointCloud> {
@@ -30,17 +32,6 @@ fn fleet(name: &str, steps: usize, voxel: f32) -> Fleet {
         maps: sims.iter().map(|s| growing_maps(s, steps, 10, voxel)).collect(),
         frames: sims.iter().map(|s| s.pose_at(0.0)).collect(),
     }
-}
-
-/// The worst error of any merged map's placement against the truth in the reference's frame.
-fn worst_error(report: &MergeReport, frames: &[Isometry3<f64>]) -> (f64, f64) {
-    let Some(reference) = report.reference else { return (0.0, 0.0) };
-    let root = report.maps[reference].id;
-    report.maps.iter().filter(|m| m.is_merged()).fold((0.0, 0.0), |(t, r), m| {
-        let truth = frames[root].inverse() * frames[m.id];
-        let e = pose_error(&m.transform(), &truth);
-        (t.max(e.translation_m), r.max(e.rotation_deg))
-    })
 }
 
 /// Grows every map step by step and merges after each step until nothing is pending; checks each

@@ -17,6 +17,9 @@ use rayon::prelude::*;
 use sim::{Scenario, SimConfig, Simulator};
 use station::merge::{MergeConfig, MergeReport, Merger};
 
+mod truth;
+use truth::{truth, worst_error};
+
 /// Keyframe voxel, metres (the outdoor odometry preset's, and the load bench's).
 const KEYFRAME_VOXEL: f32 = 0.2;
 
@@ -77,21 +80,11 @@ fn views_of(robot: &Robot, n: usize, config: &MergeConfig) -> Arc<Views> {
     Arc::new(Views::new(views))
 }
 
-/// The worst error of any merged map's placement against the truth in the reference's frame.
-fn worst_error(report: &MergeReport, fleet: &[Robot]) -> (f64, f64) {
-    let Some(reference) = report.reference else { return (0.0, 0.0) };
-    let root = report.maps[reference].id;
-    report.maps.iter().filter(|m| m.is_merged()).fold((0.0, 0.0), |(t, r), m| {
-        let truth = fleet[root].frame.inverse() * fleet[m.id].frame;
-        let e = pose_error(&m.transform(), &truth);
-        (t.max(e.translation_m), r.max(e.rotation_deg))
-    })
-}
-
 /// Grows every map by `step` keyframes at a time (with its views when `with_views`) and merges
 /// until nothing is pending; returns the worst placement published on the way and the last report.
 fn merge_as_they_drive(fleet: &[Robot], step: usize, with_views: bool) -> ((f64, f64), MergeReport) {
     let config = MergeConfig::outdoor();
+    let frames = frames(fleet);
     let total = fleet[0].keyframes.len();
     let mut merger = Merger::new(config.clone()).unwrap();
     let mut worst = (0.0f64, 0.0f64);
@@ -105,7 +98,7 @@ fn merge_as_they_drive(fleet: &[Robot], step: usize, with_views: bool) -> ((f64,
         }
         loop {
             let report = merger.merge().unwrap();
-            let (t, r) = worst_error(&report, fleet);
+            let (t, r) = worst_error(&report, &frames);
             println!(
                 "{n} keyframes, views {with_views}: merged {} of {}, pending {}, worst {t:.3} m {r:.2} deg",
                 report.merged(),
@@ -123,16 +116,22 @@ fn merge_as_they_drive(fleet: &[Robot], step: usize, with_views: bool) -> ((f64,
     (worst, last.unwrap())
 }
 
+/// Each robot's frame in the world.
+fn frames(fleet: &[Robot]) -> Vec<Isometry3<f64>> {
+    fleet.iter().map(|r| r.frame).collect()
+}
+
 /// The pairs whose edge in `report` places them within 5 cm / 0.5° of the truth.
 fn true_links(report: &MergeReport, fleet: &[Robot]) -> Vec<(usize, usize)> {
+    let frames = frames(fleet);
     report
         .edges()
-        .filter(|e| {
-            let (a, b) = (report.maps[e.a].id, report.maps[e.b].id);
-            let e = pose_error(&e.transform, &(fleet[a].frame.inverse() * fleet[b].frame));
-            e.translation_m < 0.05 && e.rotation_deg < 0.5
+        .map(|e| (report.maps[e.a].id, report.maps[e.b].id, e))
+        .filter(|(a, b, e)| {
+            let error = pose_error(&e.transform, &truth(&frames, *a, *b));
+            error.translation_m < 0.05 && error.rotation_deg < 0.5
         })
-        .map(|e| (report.maps[e.a].id, report.maps[e.b].id))
+        .map(|(a, b, _)| (a, b))
         .collect()
 }
 

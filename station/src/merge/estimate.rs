@@ -71,15 +71,11 @@ pub enum PairRejection {
     },
     /// The placement puts one map's surfaces where the other robot's sensor saw through: a
     /// look-alike place, not the same one.
-    #[error(
-        "contradicts what the robots saw: acceptance {:.2} ({agree} surfels agree, {conflict} lie in seen free space), need {needed:.2}",
-        *agree as f64 / (agree + conflict).max(1) as f64
-    )]
+    #[error("contradicts what the robots saw: acceptance {acceptance} of sampled surfels, need {needed:.2}")]
     Contradicted {
-        /// Sampled surfels some view has a return at.
-        agree: usize,
-        /// Sampled surfels that lie in free space a view saw through.
-        conflict: usize,
+        /// Sampled surfels some view has a return at (agree) or that lie in free space a view saw
+        /// through (conflict).
+        acceptance: Acceptance,
         /// [`MergeConfig::min_acceptance`].
         needed: f64,
     },
@@ -177,11 +173,7 @@ pub fn estimate_pair(
     }
     let acceptance = free_space_acceptance(map_b, map_a, &transform, config);
     if let Some(a) = acceptance.filter(|a| a.index() < config.min_acceptance) {
-        return reject(PairRejection::Contradicted {
-            agree: a.agree,
-            conflict: a.conflict,
-            needed: config.min_acceptance,
-        });
+        return reject(PairRejection::Contradicted { acceptance: a, needed: config.min_acceptance });
     }
     let inliers = global.inliers.len();
     let support = upright_support(

@@ -260,6 +260,7 @@ impl MergeConfig {
     /// Checks every setting.
     pub fn validate(&self) -> Result<(), MergeError> {
         self.pairwise.validate().map_err(MergeError::Config)?;
+        self.visibility.validate().map_err(|e| MergeError::Config(FeatureError::InvalidConfig(e)))?;
         if let Some(c) = &self.coarse {
             c.validate().map_err(MergeError::Config)?;
         }
@@ -280,16 +281,11 @@ impl MergeConfig {
             && self.max_searches > 0
             && (0.0..=1.0).contains(&self.min_acceptance)
             && self.acceptance_samples > 0
-            && self.visibility.azimuth_bins > 0
-            && self.visibility.views_per_point > 0
-            && positive(f64::from(self.visibility.elevation_bin_deg))
-            && positive(f64::from(self.visibility.margin))
-            && positive(f64::from(self.visibility.max_range))
             && positive(self.refine.voxel_resolution)
             && positive(self.refine.max_correspondence_distance);
         if !ok {
             return Err(MergeError::Config(FeatureError::InvalidConfig(
-                "merge voxels, refinement limits, growth shares, max_searches, min_confidence and the visibility settings must be positive and finite, min_acceptance within [0, 1]",
+                "merge voxels, refinement limits, growth shares, max_searches and min_confidence must be positive and finite, min_acceptance within [0, 1]",
             )));
         }
         Ok(())

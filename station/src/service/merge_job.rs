@@ -202,12 +202,7 @@ fn log_report(report: &MergeReport) {
                 id(pair.b),
                 e.confidence.score,
                 e.inliers,
-                e.acceptance.map_or("unchecked".to_string(), |a| format!(
-                    "{:.2} ({} agree, {} conflict)",
-                    a.index(),
-                    a.agree,
-                    a.conflict
-                ))
+                e.acceptance.map_or("unchecked".to_string(), |a| a.to_string())
             ),
             PairVerdict::Rejected { reason, .. } => {
                 tracing::info!("robots {} and {}: no edge ({reason})", id(pair.a), id(pair.b))
