@@ -433,8 +433,10 @@ impl Odometry {
         if motion.difference_at(&SweepMotion::zero(), 10.0) <= self.config.deskew_tolerance {
             return fit;
         }
-        let stage1 = Stage1::of(raw, &self.motion);
-        let before = self.agreement(&stage1, &pose);
+        // Each hypothesis is judged as a whole: the second scan as fitted (uncompensated, like the
+        // map it was fitted to) against the maps as they are, and compensated against the
+        // compensated maps.
+        let before = self.agreement(&Stage1::of(raw, &SweepMotion::zero()), &pose);
         let mut edge_map = FeatureMap::new(self.config.edge_map.clone());
         let mut plane_map = FeatureMap::new(self.config.plane_map.clone());
         let placed = |f: &features::Feature| (motion.compensate(&f.point, f.phase), ScanLine::new(0, f.ring));
@@ -444,12 +446,17 @@ impl Odometry {
         plane_map.crop_and_rebuild(&Point3::origin());
         let old_edges = std::mem::replace(&mut self.edge_map, edge_map);
         let old_planes = std::mem::replace(&mut self.plane_map, plane_map);
+        let old_motion = std::mem::replace(&mut self.motion, motion);
         let refit = self.estimate(raw, pose);
+        let refit_motion = SweepMotion::per_sweep(&Isometry3::identity(), &refit.pose, self.sweeps);
+        let after = self.agreement(&Stage1::of(raw, &refit_motion), &refit.pose);
+        tracing::debug!(before, after, "first scan compensated");
         // A recording published already compensated (KITTI) is distorted by compensating it
         // again: the second scan then agrees less with the first, and the maps stay as they were.
-        if self.agreement(&stage1, &refit.pose) > before {
+        if after > before {
             return refit;
         }
+        self.motion = old_motion;
         self.edge_map = old_edges;
         self.plane_map = old_planes;
         fit
@@ -514,7 +521,10 @@ impl Odometry {
             let (edge_map, plane_map) = (&self.edge_map, &self.plane_map);
             solver::estimate(&edges, &planes, edge_map, plane_map, from, &self.config.solver, &mut searches)
         };
-        if !self.config.deskew {
+        // Against the first scan, uncompensated in the map, the second is fitted uncompensated
+        // too: alike distortions cancel, where compensating one side only turns the fit further
+        // the faster the robot turns. Both are compensated once the fit measured the motion.
+        if !self.config.deskew || self.first.is_some() {
             return solve(&SweepMotion::zero(), predicted);
         }
         let mut motion = self.motion;
