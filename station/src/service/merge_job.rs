@@ -204,7 +204,18 @@ fn log_report(report: &MergeReport) {
                 e.inliers,
                 e.acceptance.map_or("unchecked".to_string(), |a| a.to_string())
             ),
-            PairVerdict::Rejected { reason, .. } => {
+            PairVerdict::Rejected { reason, best_transform: Some(t), .. } => {
+                // Where the best candidate would have put the robot: with the truth at hand (a
+                // simulation, a surveyed start) it tells a wrong look-alike from a refused true link.
+                let (x, y, z) = (t.translation.x, t.translation.y, t.translation.z);
+                let yaw = t.rotation.euler_angles().2.to_degrees();
+                tracing::info!(
+                    "robots {} and {}: no edge ({reason}); best placement ({x:.2}, {y:.2}, {z:.2}) m, yaw {yaw:.1} deg",
+                    id(pair.a),
+                    id(pair.b)
+                )
+            }
+            PairVerdict::Rejected { reason, best_transform: None, .. } => {
                 tracing::info!("robots {} and {}: no edge ({reason})", id(pair.a), id(pair.b))
             }
         }
