@@ -170,6 +170,11 @@ pub struct LoopJudgement {
     pub worst_translation_m: f64,
     /// The largest rotation error of a loop (deg).
     pub worst_rotation_deg: f64,
+    /// The largest translation error of the odometry between the same keyframes (m): a loop
+    /// corrects only what the odometry got wrong by more than the loop itself.
+    pub worst_odometry_translation_m: f64,
+    /// The largest rotation error of the odometry between the same keyframes (deg).
+    pub worst_odometry_rotation_deg: f64,
     /// Rejected candidates whose fit was right after all (missed loops): the price of the tests.
     pub missed: usize,
 }
@@ -193,6 +198,11 @@ impl LoopTrack {
             judgement.false_loops += usize::from(wrong(&e));
             judgement.worst_translation_m = judgement.worst_translation_m.max(e.translation_m);
             judgement.worst_rotation_deg = judgement.worst_rotation_deg.max(e.rotation_deg);
+            let odometry = places[l.a].odometry.inverse() * places[l.b].odometry;
+            if let Some(o) = error(l.a, l.b, &odometry) {
+                judgement.worst_odometry_translation_m = judgement.worst_odometry_translation_m.max(o.translation_m);
+                judgement.worst_odometry_rotation_deg = judgement.worst_odometry_rotation_deg.max(o.rotation_deg);
+            }
         }
         for r in self.closer.rejected() {
             let Some(fit) = &r.fit else { continue };
