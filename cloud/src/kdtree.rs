@@ -45,7 +45,17 @@ impl KdTree {
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }
+}
 
+impl crate::memory::HeapSize for KdTree {
+    /// kiddo's immutable tree keeps a copy of each point and its `u32` index in its leaves; the
+    /// stems, one split value per leaf, are left out.
+    fn heap_bytes(&self) -> usize {
+        self.len * (std::mem::size_of::<[f32; 3]>() + std::mem::size_of::<u32>())
+    }
+}
+
+impl KdTree {
     /// The nearest point to `q`.
     pub fn nearest(&self, q: &[f32; 3]) -> Option<Neighbour> {
         let r = self.tree.as_ref()?.query(q).nearest_one::<SquaredEuclidean<f32>>().execute();

@@ -11,6 +11,7 @@ pub mod formats;
 pub mod gauss_newton;
 pub mod global;
 pub mod kdtree;
+pub mod memory;
 pub mod moments;
 pub mod ordered_tree;
 pub mod point_cloud;

@@ -26,6 +26,7 @@ use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
 use crate::kdtree::KdTree;
+use crate::memory::{HeapSize, vec_bytes};
 
 /// How range images are made and points judged against them.
 #[derive(Clone, Debug, PartialEq)]
@@ -114,6 +115,12 @@ pub struct RangeImage {
     ring_gap: usize,
     /// Nearest return per cell, centimetres, row-major; [`EMPTY`] where none.
     cells: Vec<u16>,
+}
+
+impl HeapSize for RangeImage {
+    fn heap_bytes(&self) -> usize {
+        vec_bytes(&self.cells, self.cells.capacity())
+    }
 }
 
 impl RangeImage {

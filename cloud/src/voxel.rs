@@ -4,6 +4,7 @@ use nalgebra::Point3;
 use rustc_hash::FxHashMap;
 
 use crate::PointCloud;
+use crate::memory::{HeapSize, map_bytes, vec_bytes};
 
 /// Integer coordinates of a cubic cell: `floor(p / size)` per axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -30,6 +31,12 @@ pub struct InvalidVoxelSize(pub f32);
 struct Cells<T> {
     slot: FxHashMap<VoxelKey, usize>,
     cells: Vec<T>,
+}
+
+impl<T> HeapSize for Cells<T> {
+    fn heap_bytes(&self) -> usize {
+        map_bytes::<VoxelKey, usize>(self.slot.capacity()) + vec_bytes(&self.cells, self.cells.capacity())
+    }
 }
 
 impl<T: Default> Cells<T> {
@@ -126,6 +133,12 @@ pub fn downsample(cloud: &PointCloud, size: f32) -> Result<PointCloud, InvalidVo
 pub struct VoxelMap {
     inv_size: f32,
     voxels: Cells<PositionSum>,
+}
+
+impl HeapSize for VoxelMap {
+    fn heap_bytes(&self) -> usize {
+        self.voxels.heap_bytes()
+    }
 }
 
 impl VoxelMap {

@@ -130,3 +130,15 @@ fn bad_input_is_an_error_naming_the_problem() {
     invalid.preprocess.voxel_size = f32::NAN;
     assert!(matches!(align(&good, &good, &invalid), Err(GlobalError::Config(FeatureError::InvalidConfig(_)))));
 }
+
+#[test]
+fn features_keep_no_neighbourhood_lists() {
+    // The lists serve the feature steps only; a map's features are kept for a whole run.
+    let features = cloud::global::Features::compute(&kitti00(0), &GlobalConfig::default()).unwrap();
+    assert!(!features.surfels.neighbourhoods.is_held());
+    let reach = features.surfels.neighbourhoods.reach();
+    assert!(features.surfels.neighbours(0, reach, usize::MAX).is_empty());
+    // What the later steps use is all there.
+    assert_eq!(features.surfels.points.len(), features.surfels.normals.len());
+    assert_eq!(features.surfels.tree.len(), features.surfels.points.len());
+}

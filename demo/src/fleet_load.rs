@@ -17,8 +17,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
+use cloud::memory::{peak_rss_mb, rss_mb};
 use cloud::se3::{PoseError, pose_error};
-use edge::memory::{peak_rss_mb, rss_mb};
 use edge::odometry::Keyframe;
 use edge::odometry::stats::Spread;
 use edge::wire::keyframe_message;
@@ -29,7 +29,7 @@ use proto::{Fleet, GlobalMap, keyexpr};
 use rayon::prelude::*;
 use serde::Serialize;
 use sim::{Scenario, SimConfig, Simulator};
-use station::service::{Station, StationConfig, StationError, StationProgress};
+use station::service::{RobotMemory, Station, StationConfig, StationError, StationProgress};
 use tokio::sync::{oneshot, watch};
 use tracing::{info, warn};
 use zenoh::handlers::FifoChannelHandler;
@@ -136,6 +136,32 @@ pub struct LoadReport {
     pub worst_published_error: Option<PlacementError>,
     /// Resident memory of the process.
     pub rss_mb: Rss,
+    /// What the station says it holds per robot once caught up, MB.
+    pub station_mb: StationMemory,
+}
+
+/// The station's own count of what it holds ([`station::service::RobotMemory`]), MB.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct StationMemory {
+    /// Keyframes as received, over all robots.
+    pub keyframes: f64,
+    /// Local maps, range images and merge preparations, over all robots.
+    pub maps: f64,
+    /// The most any one robot costs (both parts).
+    pub robot_max: f64,
+    /// What a robot costs on average (both parts).
+    pub robot_mean: f64,
+}
+
+impl StationMemory {
+    fn of(memory: &BTreeMap<u32, RobotMemory>) -> Self {
+        let mb = |b: u64| b as f64 / 1e6;
+        let keyframes = mb(memory.values().map(|m| m.keyframes).sum());
+        let maps = mb(memory.values().map(|m| m.map).sum());
+        let robot_max = mb(memory.values().map(RobotMemory::total).max().unwrap_or(0));
+        let robot_mean = (keyframes + maps) / memory.len().max(1) as f64;
+        StationMemory { keyframes, maps, robot_max, robot_mean }
+    }
 }
 
 /// Nearest-rank percentiles of a series.
@@ -255,6 +281,7 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
     let _ = progress.wait_for(|p| p.total_keyframes() as u64 == sent && p.up_to_date()).await;
     let catch_up_s = caught_up.elapsed().as_secs_f64();
     let rss_mb = Rss { start: rss_start, end: rss_mb(), peak: peak_rss_mb() };
+    let station_mb = StationMemory::of(&progress.borrow().memory);
     let _ = stop.send(progress.borrow().revision);
     let observed = observer.await.map_err(|e| LoadError::Network(e.to_string()))?;
     let summary = rig.station.stop().await?;
@@ -280,6 +307,7 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
         placement_error,
         worst_published_error: observed.worst_error,
         rss_mb,
+        station_mb,
     })
 }
 
@@ -569,10 +597,15 @@ impl fmt::Display for LoadReport {
         let mb = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.0} MB"));
         write!(
             f,
-            "resident memory: {} at start, {} at end, {} peak",
+            "resident memory: {} at start, {} at end, {} peak; the station holds {:.0} MB of keyframes and \
+             {:.0} MB of maps, {:.1} MB per robot on average, {:.1} MB at most",
             mb(self.rss_mb.start),
             mb(self.rss_mb.end),
-            mb(self.rss_mb.peak)
+            mb(self.rss_mb.peak),
+            self.station_mb.keyframes,
+            self.station_mb.maps,
+            self.station_mb.robot_mean,
+            self.station_mb.robot_max
         )
     }
 }

@@ -114,6 +114,8 @@ enum Bench {
 
 fn main() -> Result<()> {
     bus::init_logging();
+    // The station in this process frees large merge buffers all the time (see emr-station's main).
+    cloud::memory::configure_allocator();
     let cli = Cli::parse();
     match cli.command {
         None => run_demo(cli.run)?,

@@ -3,7 +3,6 @@
 
 pub mod live_view;
 pub mod loops;
-pub mod memory;
 pub mod node;
 pub mod odometry;
 pub mod pose_graph;

@@ -5,7 +5,7 @@ mod cli;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use edge::memory::configure_allocator;
+use cloud::memory::configure_allocator;
 
 use cli::bench::BenchCommand;
 use cli::convert::ConvertArgs;

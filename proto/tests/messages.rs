@@ -88,6 +88,10 @@ fn station_status_and_request_round_trip() {
         global_map_revision: 7,
         malformed_payloads: 3,
         stamp: Some(Timestamp::now()),
+        memory: vec![
+            RobotMemory { robot: 1, keyframe_bytes: 16_400_000, map_bytes: 81_000_000 },
+            RobotMemory { robot: 8, keyframe_bytes: 0, map_bytes: 0 },
+        ],
     });
     round_trip(&KeyframeRequest { seqs: vec![0, 5, 6, 7, u64::MAX], from_seq: None });
     round_trip(&KeyframeRequest { seqs: vec![], from_seq: Some(42) });

@@ -63,6 +63,8 @@ enum Command {
 
 fn main() -> Result<()> {
     bus::init_logging();
+    // A long-running station frees large merge buffers all the time: give them pages of their own.
+    cloud::memory::configure_allocator();
     match Cli::parse().command {
         Command::Keys(args) => service::keys(args),
         Command::Info(args) => files::info(args),

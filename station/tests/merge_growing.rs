@@ -6,7 +6,7 @@ use cloud::PointCloud;
 use nalgebra::Isometry3;
 use sim::{Scenario, SimConfig, Simulator};
 use station::merge::merger::MergerStats;
-use station::merge::{MergeConfig, MergeReport, Merger};
+use station::merge::{MapStatus, MergeConfig, MergeReport, Merger, Unmerged};
 
 mod truth;
 use truth::worst_error;
@@ -168,4 +168,50 @@ fn a_map_that_barely_grew_is_not_prepared_again_but_its_points_are_in_the_global
     merger.update(0, 2, fleet.maps[0][0].clone());
     merger.merge().unwrap();
     assert_eq!(merger.stats().preparations, prepared + 1);
+}
+
+/// `map` with a share `share` more points, each beside one of its own (1 cm off).
+fn thickened(map: &PointCloud, share: f64) -> PointCloud {
+    let mut grown = map.clone();
+    let stride = (1.0 / share).round() as usize;
+    let extra: Vec<_> = map.points.iter().step_by(stride).map(|p| p + nalgebra::Vector3::new(0.01, 0.0, 0.0)).collect();
+    grown.points.extend(extra);
+    grown
+}
+
+/// A lone strip of floor, `rows` rows of 20 points 0.2 m apart: too small for features (a few rows
+/// keep fewer than 50 points at 0.4 m), never placed.
+fn floor_patch(rows: usize) -> PointCloud {
+    let points = (0..rows * 20).map(|i| nalgebra::Point3::new((i % 20) as f32 * 0.2, (i / 20) as f32 * 0.2, 0.0));
+    PointCloud::from_points(points.collect())
+}
+
+#[test]
+fn a_merged_map_is_prepared_again_at_doubling_an_unmerged_one_sooner() {
+    let fleet = fleet("campus", 1, 0.2);
+    let config = MergeConfig::outdoor();
+    let mut merger = Merger::new(config.clone()).unwrap();
+    for (id, maps) in fleet.maps.iter().enumerate() {
+        merger.grow(id, 0, maps[0].clone());
+    }
+    merger.grow(9, 0, floor_patch(4));
+    while merger.merge().unwrap().pending > 0 {}
+    let placed = merger.merge().unwrap();
+    assert_eq!(placed.merged(), 4);
+    assert!(matches!(placed.maps[4].status, MapStatus::Unmerged(Unmerged::Unusable(_))), "{:?}", placed.maps[4]);
+    let before = merger.stats().preparations;
+    // Every usable map is placed. Both grow by half: past `refresh_growth`, short of
+    // `merged_refresh_growth`.
+    assert!(config.refresh_growth < 0.5 && 0.5 < config.merged_refresh_growth);
+    merger.grow(0, 1, thickened(&fleet.maps[0][0], 0.5));
+    merger.grow(9, 1, floor_patch(6));
+    let report = merger.merge().unwrap();
+    assert_eq!(merger.stats().preparations - before, 1, "only the unmerged map is prepared again");
+    assert!(report.maps[0].is_merged() && report.maps[0].points > placed.maps[0].points, "its new points are in");
+    // Doubled: the merged map is prepared again too, and its placement holds.
+    merger.grow(0, 2, thickened(&fleet.maps[0][0], 1.0));
+    let doubled = merger.merge().unwrap();
+    assert_eq!(merger.stats().preparations - before, 2);
+    assert_eq!(doubled.merged(), 4);
+    assert!(worst_error(&doubled, &fleet.frames).0 < 0.05);
 }

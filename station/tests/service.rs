@@ -137,23 +137,23 @@ async fn fake_store(session: &Session, robot: u32, held: Vec<u64>) -> Arc<Mutex<
 fn gaps_are_the_missing_seqs_below_the_newest() {
     let mut s = FleetState::default();
     for seq in [0, 1, 4, 2, 7] {
-        assert_eq!(s.insert_keyframe(received(1, seq)), Inserted::New);
+        assert_eq!(s.insert_keyframe(&received(1, seq)), Inserted::New);
     }
     assert_eq!(s.missing(1), vec![3, 5, 6]);
     assert_eq!(s.missing(9), Vec::<u64>::new());
-    s.insert_keyframe(received(2, 3));
+    s.insert_keyframe(&received(2, 3));
     assert_eq!(s.missing(2), vec![0, 1, 2], "a robot first seen late misses everything before");
 }
 
 #[test]
 fn an_absurd_sequence_number_lists_boundedly_many_gaps() {
     let mut s = FleetState::default();
-    s.insert_keyframe(received(1, 2));
+    s.insert_keyframe(&received(1, 2));
     for seq in [1 << 40, u64::MAX] {
         // A well-formed keyframe (the cloud of keyframe 2) under an absurd sequence number.
         let bytes = Keyframe { seq, ..keyframe_msg(fleet().as_str(), 1, 2) }.encode_to_vec();
         let key = keyexpr::keyframe(&fleet(), 1);
-        s.insert_keyframe(station::service::ingest::keyframe(&fleet(), 1, &key, &bytes).unwrap());
+        s.insert_keyframe(&station::service::ingest::keyframe(&fleet(), 1, &key, &bytes).unwrap());
     }
     let gaps = s.missing(1);
     assert_eq!(gaps.len(), station::service::fleet_state::MAX_LISTED_GAPS);
@@ -167,11 +167,11 @@ fn inserts_are_idempotent_and_order_free() {
     let mut a = FleetState::default();
     let mut b = FleetState::default();
     for seq in 0..5 {
-        a.insert_keyframe(received(1, seq));
-        b.insert_keyframe(received(1, 4 - seq));
+        a.insert_keyframe(&received(1, seq));
+        b.insert_keyframe(&received(1, 4 - seq));
     }
     let revision = a.robot(1).unwrap().revision();
-    assert_eq!(a.insert_keyframe(received(1, 2)), Inserted::Duplicate);
+    assert_eq!(a.insert_keyframe(&received(1, 2)), Inserted::Duplicate);
     assert_eq!(a.robot(1).unwrap().revision(), revision, "a duplicate changes nothing");
     assert_eq!(a.basis(), b.basis());
     assert_eq!(a.keyframe_counts(), BTreeMap::from([(1, 5)]));
@@ -181,10 +181,10 @@ fn inserts_are_idempotent_and_order_free() {
 fn a_conflicting_keyframe_keeps_the_first() {
     let mut s = FleetState::default();
     let first = received(1, 0);
-    s.insert_keyframe(first.clone());
+    s.insert_keyframe(&first);
     let mut other = received(1, 1);
     other.seq = 0;
-    assert_eq!(s.insert_keyframe(other), Inserted::Conflict);
+    assert_eq!(s.insert_keyframe(&other), Inserted::Conflict);
     assert_eq!(s.robot(1).unwrap().keyframes()[&0].bytes, first.bytes);
     assert_eq!(s.total_conflicts(), 1);
 }
@@ -192,8 +192,8 @@ fn a_conflicting_keyframe_keeps_the_first() {
 #[test]
 fn optimised_poses_override_odometry_and_old_revisions_are_ignored() {
     let mut s = FleetState::default();
-    s.insert_keyframe(received(1, 0));
-    s.insert_keyframe(received(1, 1));
+    s.insert_keyframe(&received(1, 0));
+    s.insert_keyframe(&received(1, 1));
     let moved = Isometry3::translation(5.0, 0.0, 0.0);
     assert!(s.apply_poses(1, 3, BTreeMap::from([(1, moved)])));
     let r = s.robot(1).unwrap();
@@ -238,7 +238,7 @@ fn malformed_keyframes_are_refused_with_their_key() {
 fn backfill_keeps_one_request_per_robot_and_does_not_repeat_itself() {
     let mut s = FleetState::default();
     for seq in [0, 3] {
-        s.insert_keyframe(received(1, seq));
+        s.insert_keyframe(&received(1, seq));
     }
     let now = Instant::now();
     let mut b = Backfill::new(Duration::from_secs(2));
@@ -257,7 +257,7 @@ fn backfill_keeps_one_request_per_robot_and_does_not_repeat_itself() {
 fn a_request_that_timed_out_is_made_again_for_what_is_still_missing() {
     let mut s = FleetState::default();
     for seq in [0, 3] {
-        s.insert_keyframe(received(1, seq));
+        s.insert_keyframe(&received(1, seq));
     }
     let t0 = Instant::now();
     let retry = Duration::from_secs(2);
@@ -265,8 +265,8 @@ fn a_request_that_timed_out_is_made_again_for_what_is_still_missing() {
     b.want(1, Want::Everything);
     assert_eq!(b.requests(&s, t0), vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: Some(4) })]);
     // Part of it came before the timeout.
-    s.insert_keyframe(received(1, 1));
-    s.insert_keyframe(received(1, 4));
+    s.insert_keyframe(&received(1, 1));
+    s.insert_keyframe(&received(1, 4));
     b.done(1, false, t0);
     assert!(b.requests(&s, t0 + retry / 2).is_empty(), "asked again before the retry delay");
     assert_eq!(b.requests(&s, t0 + retry), vec![(1, KeyframeRequest { seqs: vec![2], from_seq: Some(5) })]);
@@ -278,9 +278,9 @@ fn a_request_that_timed_out_is_made_again_for_what_is_still_missing() {
 fn gaps_that_nothing_new_reveals_are_asked_for_again() {
     let mut s = FleetState::default();
     for seq in [0, 2] {
-        s.insert_keyframe(received(1, seq));
+        s.insert_keyframe(&received(1, seq));
     }
-    s.insert_keyframe(received(2, 0));
+    s.insert_keyframe(&received(2, 0));
     let t0 = Instant::now();
     let retry = Duration::from_secs(2);
     let mut b = Backfill::new(retry);
@@ -315,6 +315,12 @@ async fn the_station_backfills_exactly_the_hole() {
     assert_eq!(map.revision, p.revision);
     assert_eq!(map.robots.len(), 1);
     assert_eq!(map.robots[0].keyframes, 7);
+    // It says what it holds for the robot: every keyframe as received, and for the merge at least
+    // its copy of the robot's map, which has as many points as the global map of one robot.
+    let sent: u64 = (0..7).map(|seq| keyframe_bytes(1, seq).len() as u64).sum();
+    assert_eq!(p.memory[&1].keyframes, sent);
+    let points = map.cloud.as_ref().unwrap().points;
+    assert!(p.memory[&1].map >= points * 12, "{:?} for a map of {points} points", p.memory[&1]);
     let summary = station.stop().await.unwrap();
     assert_eq!(summary.keyframes, BTreeMap::from([(1, 7)]));
     assert_eq!(summary.global_map.unwrap().revision, map.revision);

@@ -11,6 +11,7 @@ use super::fpfh::{self, Fpfh};
 use super::normals::{self, Surfels};
 use super::{harris, preprocess};
 use crate::PointCloud;
+use crate::memory::{HeapSize, vec_bytes};
 use crate::stopwatch::Stopwatch;
 
 /// Wall time of the per-cloud steps.
@@ -35,7 +36,8 @@ impl FeatureTiming {
 
 /// Steps 1-4 of one cloud: surfels, keypoints and their descriptors.
 pub struct Features {
-    /// Downsampled, filtered points with normals (and their k-d tree).
+    /// Downsampled, filtered points with normals (and their k-d tree); their neighbourhood lists
+    /// are released once the features are made.
     pub surfels: Surfels,
     /// Indices into `surfels` of the keypoints that have a descriptor.
     pub keypoints: Vec<usize>,
@@ -43,6 +45,14 @@ pub struct Features {
     pub descriptors: Vec<Fpfh>,
     /// Time spent per step.
     pub timing: FeatureTiming,
+}
+
+impl HeapSize for Features {
+    fn heap_bytes(&self) -> usize {
+        self.surfels.heap_bytes()
+            + vec_bytes(&self.keypoints, self.keypoints.capacity())
+            + vec_bytes(&self.descriptors, self.descriptors.capacity())
+    }
 }
 
 impl Features {
@@ -72,6 +82,9 @@ impl Features {
         if keypoints.len() < 3 {
             return Err(FeatureError::TooFewPoints { stage: "descriptors", points: keypoints.len(), needed: 3 });
         }
+        // Matching, RANSAC, scoring and polishing use the points, normals and tree only.
+        let mut surfels = surfels;
+        surfels.neighbourhoods.release();
         Ok(Self { surfels, keypoints, descriptors, timing })
     }
 

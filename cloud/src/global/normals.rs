@@ -23,6 +23,7 @@ use super::error::FeatureError;
 use crate::PointCloud;
 use crate::eigen3::symmetric_eigen3;
 use crate::kdtree::KdTree;
+use crate::memory::{HeapSize, vec_bytes};
 use crate::moments::mean_covariance;
 
 /// How the sign of each normal is chosen.
@@ -141,9 +142,9 @@ impl Neighbourhoods {
     }
 
     /// The neighbours of point `i` within `radius` (at most the reach), itself included, nearest
-    /// first, at most `max` of them.
+    /// first, at most `max` of them; none once [`Neighbourhoods::release`]d.
     pub fn of(&self, i: usize, radius: f32, max: usize) -> &[Near] {
-        let block = &self.blocks[i / BLOCK];
+        let Some(block) = self.blocks.get(i / BLOCK) else { return &[] };
         let k = i % BLOCK;
         let all = &block.entries[block.offsets[k] as usize..block.offsets[k + 1] as usize];
         let within = all.partition_point(|n| n.dist_sq <= radius * radius);
@@ -153,6 +154,37 @@ impl Neighbourhoods {
     /// The radius the lists were built with, metres.
     pub fn reach(&self) -> f32 {
         self.reach
+    }
+
+    /// Frees the lists: 8 bytes per neighbour, a hundred neighbours a point within a 2 m reach at
+    /// 0.4 m spacing, so tens of megabytes for a robot's map, needed only while its features are
+    /// computed. Afterwards no point has neighbours.
+    pub fn release(&mut self) {
+        self.blocks = Vec::new();
+    }
+
+    /// True until [`Neighbourhoods::release`]d.
+    pub fn is_held(&self) -> bool {
+        !self.blocks.is_empty()
+    }
+}
+
+impl HeapSize for Neighbourhoods {
+    fn heap_bytes(&self) -> usize {
+        self.blocks
+            .iter()
+            .map(|b| vec_bytes(&b.offsets, b.offsets.capacity()) + vec_bytes(&b.entries, b.entries.capacity()))
+            .sum::<usize>()
+            + vec_bytes(&self.blocks, self.blocks.capacity())
+    }
+}
+
+impl HeapSize for Surfels {
+    fn heap_bytes(&self) -> usize {
+        vec_bytes(&self.points, self.points.capacity())
+            + vec_bytes(&self.normals, self.normals.capacity())
+            + self.tree.heap_bytes()
+            + self.neighbourhoods.heap_bytes()
     }
 }
 

@@ -4,6 +4,7 @@ use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
 use super::covariance::estimate_covariances_with;
 use crate::kdtree::KdTree;
+use crate::memory::{HeapSize, vec_bytes};
 
 /// A set of Gaussians (mean, covariance) with a nearest-neighbour search: a point cloud with a k-d
 /// tree (GICP) or a voxel map (VGICP).
@@ -81,6 +82,14 @@ impl GaussianCloud {
     /// True when the cloud holds no point.
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
+    }
+}
+
+impl HeapSize for GaussianCloud {
+    fn heap_bytes(&self) -> usize {
+        vec_bytes(&self.points, self.points.capacity())
+            + vec_bytes(&self.covariances, self.covariances.capacity())
+            + self.tree.heap_bytes()
     }
 }
 

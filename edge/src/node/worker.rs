@@ -15,10 +15,10 @@ use tracing::{error, warn};
 use super::{NodeError, Rate};
 use crate::loops::LoopCloser;
 use crate::loops::scan_context::{ScanContext, ScanContextConfig};
-use crate::memory::release_periodically;
 use crate::odometry::{Keyframe, Odometry};
 use crate::source::{Source, SourceScan};
 use crate::wire;
+use cloud::memory::release_periodically;
 
 /// One registered scan, as the async half needs it.
 #[derive(Debug)]

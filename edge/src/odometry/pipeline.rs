@@ -23,9 +23,9 @@ use super::stats::{RunStats, RunSummary};
 use super::{Frame, Method, Odometry, OdometryConfig, OdometryError};
 use crate::loops::LoopError;
 use crate::loops::track::{LoopSummary, LoopTrack};
-use crate::memory::{MemoryTrace, MemoryWatch, peak_rss_mb};
 use crate::recording::{RecordingOptions, RingModel, Spin, TimeModel};
 use crate::source::{Source, SourceError, SourceScan, SourceSpec};
+use cloud::memory::{MemoryTrace, MemoryWatch, peak_rss_mb};
 use sim::SimConfig;
 
 /// Why a run of the odometry failed.

@@ -3,6 +3,7 @@
 use std::sync::Arc;
 
 use cloud::PointCloud;
+use cloud::memory::HeapSize;
 use cloud::registration::{GaussianCloud, MIN_POINTS};
 use cloud::visibility::Views;
 use cloud::voxel::downsample;
@@ -28,6 +29,16 @@ pub struct PreparedMap {
     /// What the robot's sensor saw, keyframe by keyframe, when the map came with it
     /// ([`super::Merger::set_views`]): the free space another map placed here must respect.
     pub views: Option<Arc<Views>>,
+}
+
+impl HeapSize for PreparedMap {
+    /// Features and Gaussians; the views are the station's, shared, and counted there.
+    fn heap_bytes(&self) -> usize {
+        self.features.as_ref().map_or(0, HeapSize::heap_bytes)
+            + self.coarse.as_ref().map_or(0, HeapSize::heap_bytes)
+            + self.fine.as_ref().map_or(0, HeapSize::heap_bytes)
+            + self.finish.as_ref().map_or(0, HeapSize::heap_bytes)
+    }
 }
 
 impl PreparedMap {

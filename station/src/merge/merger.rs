@@ -14,11 +14,12 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
+use cloud::memory::HeapSize;
 use cloud::stopwatch::{Stopwatch, timed};
 use cloud::visibility::Views;
 use cloud::{Channels, PointCloud};
 use rayon::prelude::*;
-use rustc_hash::FxHashMap;
+use rustc_hash::{FxHashMap, FxHashSet};
 
 use super::graph::{self, Chained, GraphEdge};
 use super::{
@@ -112,6 +113,8 @@ pub struct Merger {
     next_generation: u64,
     /// The next merge settles (see [`Merger::settle`]).
     settling: bool,
+    /// Ids of the maps the last merge placed in the global map.
+    merged: FxHashSet<usize>,
 }
 
 impl Merger {
@@ -125,6 +128,7 @@ impl Merger {
             stats: MergerStats::default(),
             next_generation: 1,
             settling: false,
+            merged: FxHashSet::default(),
         })
     }
 
@@ -194,6 +198,13 @@ impl Merger {
         self.settling = true;
     }
 
+    /// Bytes the merger holds for map `id`: its newest cloud and its preparation (`None` for a map
+    /// it does not hold).
+    pub fn heap_bytes_of(&self, id: usize) -> Option<usize> {
+        let slot = self.maps.get(&id)?;
+        Some(slot.cloud.heap_bytes() + slot.prepared.as_ref().map_or(0, |p| p.map.heap_bytes()))
+    }
+
     /// Forgets map `id` and its pairs.
     pub fn remove(&mut self, id: usize) {
         self.maps.remove(&id);
@@ -217,6 +228,7 @@ impl Merger {
         let timing = MergeTiming { features, pairs: pairs_time, graph, assemble, total: watch.elapsed() };
         let pending = deferred_maps.len() + deferred_pairs;
         let settled = std::mem::take(&mut self.settling) && pending == 0;
+        self.merged = maps.iter().filter(|m| m.is_merged()).map(|m| m.id).collect();
         Ok(MergeReport {
             maps,
             pairs,
@@ -231,26 +243,35 @@ impl Merger {
     }
 
     /// Prepares, in parallel, every map that must be (new, reshaped) and up to
-    /// [`MergeConfig::max_refreshes`] of the grown ones, the most grown first, settling or not (a
-    /// settling merge that prepared every map at once took 19 s at 16 robots); returns the ids of
-    /// the grown maps that wait for a later merge.
+    /// [`MergeConfig::max_refreshes`] of the grown ones, unmerged before merged and then the most
+    /// grown first, settling or not (a settling merge that prepared every map at once took 19 s at
+    /// 16 robots); returns the ids of the grown maps that wait for a later merge. Once every usable
+    /// map is placed, a placed one counts as grown only at [`MergeConfig::merged_refresh_growth`].
     fn prepare_stale(&mut self) -> Vec<usize> {
         let config = &self.config;
         let mut required = Vec::new();
         let mut grown = Vec::new();
-        // Settling: any growth at all counts.
-        let refresh_growth = if self.settling { f64::MIN_POSITIVE } else { config.refresh_growth };
+        // While a usable map waits to be placed, its searches need the others' newest parts.
+        let unusable = |slot: &Slot| slot.prepared.as_ref().is_some_and(|p| p.map.usable().is_none());
+        let all_placed = self.maps.iter().all(|(id, slot)| self.merged.contains(id) || unusable(slot));
         for (&id, slot) in &self.maps {
+            let merged = self.merged.contains(&id);
+            // Settling: any growth at all counts.
+            let refresh_growth = match (self.settling, merged && all_placed) {
+                (true, _) => f64::MIN_POSITIVE,
+                (false, true) => config.merged_refresh_growth,
+                (false, false) => config.refresh_growth,
+            };
             match slot.staleness(refresh_growth) {
                 Staleness::Required => required.push(id),
-                Staleness::Grown(g) => grown.push((id, g)),
+                Staleness::Grown(g) => grown.push((id, merged, g)),
                 Staleness::Fresh => {}
             }
         }
-        grown.sort_by(|a, b| b.1.total_cmp(&a.1));
+        grown.sort_by(|a, b| a.1.cmp(&b.1).then(b.2.total_cmp(&a.2)));
         let (now, later) = grown.split_at(grown.len().min(config.max_refreshes));
-        required.extend(now.iter().map(|&(id, _)| id));
-        let deferred: Vec<usize> = later.iter().map(|&(id, _)| id).collect();
+        required.extend(now.iter().map(|&(id, ..)| id));
+        let deferred: Vec<usize> = later.iter().map(|&(id, ..)| id).collect();
         self.stats.preparations += required.len();
         let fresh: Vec<(usize, PreparedMap)> = required
             .par_iter()

@@ -158,6 +158,14 @@ pub struct MergeConfig {
     /// In between, the global map takes its newest points at the placement estimated on the last
     /// preparation: the transform between two robots' frames does not change as they drive on.
     pub refresh_growth: f64,
+    /// The same for a map that the last merge placed in the global map, once every usable map is
+    /// placed (default 1.0: at every doubling). Its placement does not change as it grows, so
+    /// preparing it again then serves only to re-examine its links on more evidence; preparing
+    /// every growing map at `refresh_growth` kept a 16-robot station preparing two maps in every
+    /// merge. While a usable map is unplaced, its searches need the others' newest parts (an
+    /// overlap is often in what a robot mapped last), so every map is prepared at
+    /// `refresh_growth`, unplaced ones first.
+    pub merged_refresh_growth: f64,
     /// A linked pair is tracked from its last transform when its maps change; the global
     /// registration runs again, with every check, once either map has this share more points than
     /// when the link was last found that way (default 1.0: at every doubling), so that a link made
@@ -221,6 +229,7 @@ impl MergeConfig {
             reference: None,
             output_voxel: 0.2,
             refresh_growth: 0.25,
+            merged_refresh_growth: 1.0,
             reverify_growth: 1.0,
             max_searches: 8,
             max_refreshes: 2,
@@ -277,6 +286,7 @@ impl MergeConfig {
             && self.max_ambiguity.is_finite()
             && positive(self.ambiguity_distance)
             && positive(self.refresh_growth)
+            && positive(self.merged_refresh_growth)
             && positive(self.reverify_growth)
             && self.max_searches > 0
             && (0.0..=1.0).contains(&self.min_acceptance)

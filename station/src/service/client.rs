@@ -223,6 +223,9 @@ fn status_fields(s: &StationStatus) -> Value {
         "last_merge_ms": round3(s.last_merge_ms),
         "revision": s.global_map_revision,
         "malformed": s.malformed_payloads,
+        "memory_mb": s.memory.iter().map(|m| {
+            json!({ "robot": m.robot, "keyframes": round3(m.keyframe_bytes as f64 / 1e6), "map": round3(m.map_bytes as f64 / 1e6) })
+        }).collect::<Vec<_>>(),
     })
 }
 

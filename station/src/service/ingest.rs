@@ -98,6 +98,13 @@ fn pose(p: Option<&proto::Pose>) -> Result<Isometry3<f64>, String> {
     Isometry3::try_from(p).map_err(|e| e.to_string())
 }
 
+/// The cloud of a keyframe held as its bytes (checked by [`keyframe`] when it arrived), decoded
+/// again: what the merge does when it needs the points.
+pub fn held_cloud(bytes: &[u8]) -> Result<PointCloud, String> {
+    let kf: Keyframe = decode(bytes, MAX_KEYFRAME_BYTES)?;
+    keyframe_cloud(&kf)
+}
+
 /// The keyframe's cloud, positions only (the merge uses nothing else; channels would only cost
 /// memory), with every point finite.
 fn keyframe_cloud(kf: &Keyframe) -> Result<PointCloud, String> {

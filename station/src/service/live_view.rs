@@ -93,6 +93,11 @@ impl StationView {
                 "last_merge_ms": status.last_merge_ms,
                 "global_map_revision": status.global_map_revision,
                 "malformed_payloads": status.malformed_payloads,
+                "memory_mb": status.memory.iter().map(|m| json!({
+                    "robot": m.robot,
+                    "keyframes": m.keyframe_bytes as f64 / 1e6,
+                    "map": m.map_bytes as f64 / 1e6,
+                })).collect::<Vec<_>>(),
             })
         });
     }

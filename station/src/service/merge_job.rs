@@ -6,7 +6,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use cloud::PointCloud;
-use cloud::visibility::{RangeImage, View, Views};
+use cloud::memory::{HeapSize, map_bytes};
+use cloud::visibility::{RangeImage, View, Views, VisibilityConfig};
 use cloud::voxel::VoxelMap;
 use nalgebra::Isometry3;
 use prost::Message;
@@ -16,6 +17,7 @@ use rayon::prelude::*;
 use rustc_hash::FxHashSet;
 
 use super::fleet_state::{Basis, FleetState};
+use super::ingest;
 use crate::merge::{MergeConfig, MergeError, MergeReport, Merger, PairVerdict};
 
 /// One robot's input to a job: its keyframe clouds with their poses, at one map revision.
@@ -31,18 +33,19 @@ pub struct RobotSnapshot {
     pub basis: Basis,
 }
 
-/// A keyframe's cloud and its best pose.
+/// A keyframe and its best pose.
 #[derive(Clone, Debug)]
 pub struct PlacedKeyframe {
     /// Sequence number.
     pub seq: u64,
-    /// The cloud, in the sensor frame.
-    pub cloud: Arc<PointCloud>,
+    /// The keyframe as received: its cloud, in the sensor frame, is decoded when the job needs it
+    /// (see [`super::fleet_state`]).
+    pub bytes: Arc<[u8]>,
     /// Moves the cloud into the robot's odometry frame.
     pub pose: Isometry3<f64>,
 }
 
-/// Snapshots of every robot, cheap to take (clouds are shared).
+/// Snapshots of every robot, cheap to take (payloads are shared).
 pub fn snapshot(state: &FleetState) -> Vec<RobotSnapshot> {
     state
         .robots()
@@ -53,7 +56,7 @@ pub fn snapshot(state: &FleetState) -> Vec<RobotSnapshot> {
             keyframes: r
                 .keyframes()
                 .iter()
-                .filter_map(|(&seq, kf)| Some(PlacedKeyframe { seq, cloud: Arc::clone(&kf.cloud), pose: r.pose(seq)? }))
+                .filter_map(|(&seq, kf)| Some(PlacedKeyframe { seq, bytes: Arc::clone(&kf.bytes), pose: r.pose(seq)? }))
                 .collect(),
             basis: r.basis(),
         })
@@ -73,6 +76,8 @@ pub struct MergeOutcome {
     pub elapsed: Duration,
     /// The global map's points as merged, before the codec, with their robots (for the live view).
     pub cloud: MapCloud,
+    /// Per robot, the bytes the merge keeps for it between jobs (see [`MergeWorker::memory`]).
+    pub memory: BTreeMap<u32, u64>,
 }
 
 /// The global map's points with the robot each came from.
@@ -135,7 +140,10 @@ impl MergeWorker {
         let basis = robots.iter().map(|r| (r.robot, r.basis)).collect();
         // Map ids are robot ids (see `RobotSnapshot::robot`).
         let cloud = MapCloud { robots: report.origins.iter().map(|&id| id as u32).collect(), cloud: report.global_map };
-        Ok(MergeOutcome { map, bytes, basis, elapsed: clock.elapsed(), cloud })
+        // A merge frees hundreds of megabytes of preparations, decoded keyframes and pair work on
+        // rayon's threads; glibc keeps what each thread freed in its own arena until told.
+        cloud::memory::release_free_memory();
+        Ok(MergeOutcome { map, bytes, basis, elapsed: clock.elapsed(), cloud, memory: self.memory() })
     }
 
     /// Brings robot `r`'s local map up to its snapshot: new keyframes are added to it (the map
@@ -154,7 +162,11 @@ impl MergeWorker {
             self.maps.insert(r.robot, fresh);
         }
         let local = self.maps.get_mut(&r.robot).expect("inserted above");
-        for kf in &r.keyframes {
+        let images = self.images.entry(r.robot).or_default();
+        for kf in decode_missing(r, local, images, &self.merger.config().visibility) {
+            if let Some(image) = kf.image {
+                images.insert(kf.seq, image);
+            }
             if local.included.insert(kf.seq) {
                 let pose = kf.pose.cast::<f32>();
                 local.map.insert(kf.cloud.points.iter().map(|p| pose * p));
@@ -170,25 +182,67 @@ impl MergeWorker {
         self.merger.set_views(id, Arc::new(views));
     }
 
-    /// Robot `r`'s keyframes as its sensor saw them, at their current poses; range images are made
-    /// once per keyframe, in parallel.
-    fn views(&mut self, r: &RobotSnapshot) -> Views {
-        let images = self.images.entry(r.robot).or_default();
-        let config = &self.merger.config().visibility;
-        let fresh: Vec<(u64, Arc<RangeImage>)> = r
-            .keyframes
-            .par_iter()
-            .filter(|kf| !images.contains_key(&kf.seq))
-            .map(|kf| (kf.seq, Arc::new(RangeImage::new(&kf.cloud.points, config))))
-            .collect();
-        images.extend(fresh);
+    /// Per robot, the bytes kept for it between jobs: its local map, its keyframes' range images,
+    /// and the merger's copy of its map with the map's preparation (features, Gaussians).
+    pub fn memory(&self) -> BTreeMap<u32, u64> {
+        self.maps
+            .iter()
+            .map(|(&robot, local)| {
+                let images = self.images.get(&robot).map_or(0, |held| {
+                    held.values().map(|i| i.heap_bytes()).sum::<usize>()
+                        + held.len() * std::mem::size_of::<(u64, Arc<RangeImage>)>()
+                });
+                let merger = self.merger.heap_bytes_of(robot as usize).unwrap_or(0);
+                let included = map_bytes::<u64, ()>(local.included.capacity());
+                (robot, (local.map.heap_bytes() + included + images + merger) as u64)
+            })
+            .collect()
+    }
+
+    /// Robot `r`'s keyframes as its sensor saw them, at their current poses.
+    fn views(&self, r: &RobotSnapshot) -> Views {
+        let images = self.images.get(&r.robot);
         let views = r
             .keyframes
             .iter()
-            .map(|kf| View { pose: kf.pose.cast::<f32>(), image: Arc::clone(&images[&kf.seq]) })
+            .filter_map(|kf| Some(View { pose: kf.pose.cast::<f32>(), image: Arc::clone(images?.get(&kf.seq)?) }))
             .collect();
         Views::new(views)
     }
+}
+
+/// A keyframe decoded for the job, with its range image when it had none.
+struct Decoded {
+    seq: u64,
+    pose: Isometry3<f64>,
+    cloud: PointCloud,
+    image: Option<Arc<RangeImage>>,
+}
+
+/// Decodes, in parallel, the keyframes of `r` that `local` does not hold yet or that have no range
+/// image, and makes the missing images (once per keyframe: in the sensor frame, new poses only
+/// move them). A keyframe that no longer decodes (it passed the checks when it arrived) is logged
+/// and left out.
+fn decode_missing(
+    r: &RobotSnapshot,
+    local: &LocalMap,
+    images: &BTreeMap<u64, Arc<RangeImage>>,
+    config: &VisibilityConfig,
+) -> Vec<Decoded> {
+    r.keyframes
+        .par_iter()
+        .filter(|kf| !local.included.contains(&kf.seq) || !images.contains_key(&kf.seq))
+        .filter_map(|kf| match ingest::held_cloud(&kf.bytes) {
+            Ok(cloud) => {
+                let image = (!images.contains_key(&kf.seq)).then(|| Arc::new(RangeImage::new(&cloud.points, config)));
+                Some(Decoded { seq: kf.seq, pose: kf.pose, cloud, image })
+            }
+            Err(e) => {
+                tracing::error!("robot {} keyframe {} no longer decodes, left out of its map: {e}", r.robot, kf.seq);
+                None
+            }
+        })
+        .collect()
 }
 
 /// Why pairs were refused and where the time went: what an operator needs when a robot stays out.

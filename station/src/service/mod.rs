@@ -114,8 +114,30 @@ pub struct StationProgress {
     pub merge_pending: bool,
     /// A merge is running.
     pub merge_running: bool,
+    /// What the station holds per robot.
+    pub memory: BTreeMap<u32, RobotMemory>,
     /// What the database has committed (all zero without a data directory).
     pub committed: Committed,
+}
+
+/// What the station holds in memory for one robot, bytes, counted from its containers' capacities
+/// (see [`cloud::memory::HeapSize`]). Both parts grow with what the robot has mapped, not with time
+/// spent: a robot that stands still adds nothing.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RobotMemory {
+    /// Its keyframes as received, every one kept (the merge rebuilds the robot's map from them
+    /// when a pose-graph update moves them), decoded only while the merge needs their points.
+    pub keyframes: u64,
+    /// Its local map, its keyframes' range images and the merge's preparation of its map (features,
+    /// Gaussians), as of the last merge.
+    pub map: u64,
+}
+
+impl RobotMemory {
+    /// Both parts.
+    pub fn total(&self) -> u64 {
+        self.keyframes + self.map
+    }
 }
 
 impl StationProgress {

@@ -26,7 +26,7 @@ use super::live_view::StationView;
 use super::merge_job::{MapCloud, MergeOutcome, MergeWorker, snapshot};
 use super::merge_queue::MergeQueue;
 use super::store::{self, Persisted, Store, Write};
-use super::{StationConfig, StationError, StationProgress, StationSummary};
+use super::{RobotMemory, StationConfig, StationError, StationProgress, StationSummary};
 use crate::merge::{MergeConfig, MergeError};
 
 /// How long a backfill request waits for the robot's replies: a request that times out is made again
@@ -155,7 +155,7 @@ fn reload(fleet: &Fleet, persisted: Persisted) -> Reloaded {
         let origin = format!("{} keyframe {seq} of robot {robot}", store::FILE_NAME);
         match ingest::keyframe(fleet, robot, &origin, &bytes) {
             Ok(kf) => {
-                out.state.insert_keyframe(kf);
+                out.state.insert_keyframe(&kf);
             }
             Err(e) => reject(&mut out.rejected, &e),
         }
@@ -238,6 +238,8 @@ struct Counters {
     backfill_requests: u64,
     merges: u64,
     merge_ms: Vec<f64>,
+    /// Per robot, the merge's bytes as of the last merge.
+    map_memory: BTreeMap<u32, u64>,
 }
 
 /// Everything the loop owns.
@@ -369,12 +371,10 @@ impl Core {
 
     fn insert(&mut self, kf: ReceivedKeyframe, origin: Origin) {
         let (robot, seq, bytes) = (kf.robot, kf.seq, Arc::clone(&kf.bytes));
-        match self.state.insert_keyframe(kf) {
+        match self.state.insert_keyframe(&kf) {
             Inserted::New => {
-                if let Some(view) = &self.view
-                    && let Some(kf) = self.state.robot(robot).and_then(|r| r.keyframes().get(&seq))
-                {
-                    view.keyframe(kf);
+                if let Some(view) = &self.view {
+                    view.keyframe(&kf);
                 }
                 self.persist(Write::Keyframe { robot, seq, bytes });
                 self.queue.changed(Instant::now());
@@ -506,7 +506,8 @@ impl Core {
     }
 
     async fn publish_map(&mut self, outcome: MergeOutcome, publisher: &Publisher<'static>) {
-        let MergeOutcome { map, bytes, basis, elapsed, cloud } = outcome;
+        let MergeOutcome { map, bytes, basis, elapsed, cloud, memory } = outcome;
+        self.counters.map_memory = memory;
         let ms = cloud::stopwatch::millis(elapsed);
         let merged = map.robots.iter().filter(|r| r.status == proto::MergeStatus::Merged as i32).count();
         info!("global map revision {}: {merged} of {} robots merged ({ms:.0} ms)", map.revision, map.robots.len());
@@ -537,6 +538,11 @@ impl Core {
             global_map_revision: self.revision(),
             malformed_payloads: self.counters.malformed,
             stamp: Some(Timestamp::now()),
+            memory: self
+                .memory()
+                .into_iter()
+                .map(|(robot, m)| proto::RobotMemory { robot, keyframe_bytes: m.keyframes, map_bytes: m.map })
+                .collect(),
         };
         if let Some(view) = &self.view {
             view.status(&status, self.counters.merges);
@@ -571,6 +577,18 @@ impl Core {
         self.latest.as_ref().map_or(0, |p| p.map.revision)
     }
 
+    /// What the station holds per robot: its keyframes, and the merge's share as of the last merge.
+    fn memory(&self) -> BTreeMap<u32, RobotMemory> {
+        self.state
+            .robots()
+            .iter()
+            .map(|(&robot, r)| {
+                let map = self.counters.map_memory.get(&robot).copied().unwrap_or(0);
+                (robot, RobotMemory { keyframes: r.keyframe_bytes(), map })
+            })
+            .collect()
+    }
+
     fn report_progress(&self) {
         let s = &self.state;
         let c = &self.counters;
@@ -591,6 +609,7 @@ impl Core {
                 revision: self.revision(),
                 merge_pending: self.queue.depth() > 0,
                 merge_running: self.queue.running(),
+                memory: self.memory(),
                 committed: p.committed,
             };
             let changed = *p != next;

@@ -104,3 +104,33 @@ impl MemoryWatch {
         MemoryTrace { end: self.trace.end.or_else(rss_mb), ..self.trace }
     }
 }
+
+/// The heap memory a value holds, bytes: what a long-running service reports per robot.
+///
+/// Counted from the containers' capacities and element sizes: what is reserved, not a measurement.
+/// What an allocator adds per block is left out, and a reserved page that was never written (the
+/// spare half of a hash table that just grew) is not resident, so the process's resident size can
+/// be below or above the sum.
+pub trait HeapSize {
+    /// Bytes on the heap owned by this value.
+    fn heap_bytes(&self) -> usize;
+}
+
+/// Bytes of a vector's buffer.
+pub fn vec_bytes<T>(v: &[T], capacity: usize) -> usize {
+    capacity.max(v.len()) * std::mem::size_of::<T>()
+}
+
+/// Bytes of a hash map's buffer: keys, values and one control byte per bucket.
+pub fn map_bytes<K, V>(buckets: usize) -> usize {
+    buckets * (std::mem::size_of::<(K, V)>() + 1)
+}
+
+impl HeapSize for crate::PointCloud {
+    fn heap_bytes(&self) -> usize {
+        vec_bytes(&self.points, self.points.capacity())
+            + self.intensity.as_ref().map_or(0, |v| vec_bytes(v, v.capacity()))
+            + self.ring.as_ref().map_or(0, |v| vec_bytes(v, v.capacity()))
+            + self.time.as_ref().map_or(0, |v| vec_bytes(v, v.capacity()))
+    }
+}
