@@ -11,7 +11,15 @@ use proto::codec::{self, DecodeLimits};
 use proto::{Fleet, Keyframe, PoseGraphUpdate};
 
 use super::fleet_state::ReceivedKeyframe;
-use super::live_view::LoopEdge;
+
+/// A loop edge of a robot's pose graph: keyframe sequence numbers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LoopEdge {
+    /// The older keyframe.
+    pub from: u64,
+    /// The newer keyframe.
+    pub to: u64,
+}
 
 /// Largest keyframe payload accepted, bytes (a keyframe is a downsampled scan: a few MB at most).
 pub const MAX_KEYFRAME_BYTES: usize = 64 << 20;

@@ -12,16 +12,8 @@ use proto::{GlobalMap, MergeStatus, StationStatus};
 use serde_json::json;
 
 use super::fleet_state::{FleetState, ReceivedKeyframe, RobotState};
+use super::ingest::LoopEdge;
 use super::merge_job::MapCloud;
-
-/// A loop edge of a robot's pose graph: keyframe sequence numbers.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct LoopEdge {
-    /// The older keyframe.
-    pub from: u64,
-    /// The newer keyframe.
-    pub to: u64,
-}
 
 /// Publishes the station's state to a [`Live`].
 pub struct StationView {
