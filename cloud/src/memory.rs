@@ -134,3 +134,35 @@ impl HeapSize for crate::PointCloud {
             + self.time.as_ref().map_or(0, |v| vec_bytes(v, v.capacity()))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Point3;
+
+    use super::*;
+    use crate::PointCloud;
+    use crate::registration::GaussianCloud;
+    use crate::voxel::VoxelMap;
+
+    fn grid(n: usize) -> Vec<Point3<f32>> {
+        (0..n).map(|i| Point3::new((i % 10) as f32, (i / 10 % 10) as f32, (i / 100) as f32)).collect()
+    }
+
+    #[test]
+    fn sizes_follow_what_each_container_reserves() {
+        let mut cloud = PointCloud::from_points(grid(1000));
+        cloud.points.shrink_to_fit();
+        assert_eq!(cloud.heap_bytes(), 1000 * 12);
+        cloud.intensity = Some(vec![0.0; 1000]);
+        assert_eq!(cloud.heap_bytes(), 1000 * 16);
+        // Per point: f64 position, f64 covariance, and the tree's f32 copy and index.
+        let gaussians = GaussianCloud::new(&grid(1000), 10);
+        assert!(gaussians.heap_bytes() >= 1000 * (24 + 72 + 16), "{}", gaussians.heap_bytes());
+        // A voxel map grows with its cells, not with the points that fall in them.
+        let mut map = VoxelMap::new(1.0).unwrap();
+        map.insert(grid(1000));
+        let cells = map.heap_bytes();
+        map.insert(grid(1000).into_iter().map(|p| p + nalgebra::Vector3::new(0.1, 0.1, 0.1)));
+        assert_eq!(map.heap_bytes(), cells);
+    }
+}
