@@ -90,7 +90,7 @@ impl Running {
 
     /// The seqs and payloads a request gets back.
     async fn request(&self, seqs: &[u64], from_seq: Option<u64>) -> BTreeMap<u64, Vec<u8>> {
-        let request = KeyframeRequest { seqs: seqs.to_vec(), from_seq };
+        let request = KeyframeRequest { seqs: seqs.to_vec(), from_seq, limit: None };
         let (ok, err) = self.ask(request.encode_to_vec()).await;
         assert!(err.is_empty(), "{err:?}");
         let decoded = ok.into_iter().map(|p| (proto::Keyframe::decode(p.as_slice()).unwrap().seq, p));

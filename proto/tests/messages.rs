@@ -93,8 +93,8 @@ fn station_status_and_request_round_trip() {
             RobotMemory { robot: 8, keyframe_bytes: 0, map_bytes: 0 },
         ],
     });
-    round_trip(&KeyframeRequest { seqs: vec![0, 5, 6, 7, u64::MAX], from_seq: None });
-    round_trip(&KeyframeRequest { seqs: vec![], from_seq: Some(42) });
+    round_trip(&KeyframeRequest { seqs: vec![0, 5, 6, 7, u64::MAX], from_seq: None, limit: None });
+    round_trip(&KeyframeRequest { seqs: vec![], from_seq: Some(42), limit: None });
 }
 
 #[test]

@@ -10,7 +10,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use prost::Message;
 use proto::codec::{self, CodecConfig};
 use proto::{CompressedCloud, Fleet, Keyframe, KeyframePose, KeyframeRequest, Pose, PoseGraphUpdate, keyexpr};
-use station::service::backfill::{Backfill, Want};
+use station::service::backfill::{Backfill, Ended, MAX_KEYFRAMES_PER_REQUEST, Want};
 use station::service::fleet_state::{FleetState, Inserted, ReceivedKeyframe};
 use station::service::{Station, StationConfig, StationProgress, client, ingest};
 use tokio::sync::watch;
@@ -122,7 +122,9 @@ async fn fake_store(session: &Session, robot: u32, held: Vec<u64>) -> Arc<Mutex<
         while let Ok(query) = queryable.recv_async().await {
             let request = KeyframeRequest::decode(query.payload().unwrap().to_bytes().as_ref()).unwrap();
             let wanted = |s: &u64| request.seqs.contains(s) || request.from_seq.is_some_and(|from| *s >= from);
-            for seq in held.iter().copied().filter(wanted) {
+            // As a robot does: the lowest `limit` of them.
+            let limit = request.limit.map_or(usize::MAX, |l| l as usize);
+            for seq in held.iter().copied().filter(wanted).take(limit) {
                 query.reply(key.clone(), keyframe_bytes(robot, seq)).await.unwrap();
             }
             log.lock().unwrap().push(request);
@@ -244,13 +246,19 @@ fn backfill_keeps_one_request_per_robot_and_does_not_repeat_itself() {
     let mut b = Backfill::new(Duration::from_secs(2));
     b.want(1, Want::Gaps);
     let sent = b.requests(&s, now);
-    assert_eq!(sent, vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: None })]);
+    assert_eq!(
+        sent,
+        vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: None, limit: Some(MAX_KEYFRAMES_PER_REQUEST) })]
+    );
     b.want(1, Want::Gaps);
     assert!(b.requests(&s, now).is_empty(), "one outstanding request per robot");
-    b.done(1, true, now);
+    b.done(1, Ended::Complete, now);
     assert!(b.requests(&s, now).is_empty(), "the same gaps again so soon");
     b.want(1, Want::Everything);
-    assert_eq!(b.requests(&s, now), vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: Some(4) })]);
+    assert_eq!(
+        b.requests(&s, now),
+        vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: Some(4), limit: Some(MAX_KEYFRAMES_PER_REQUEST) })]
+    );
 }
 
 #[test]
@@ -263,15 +271,43 @@ fn a_request_that_timed_out_is_made_again_for_what_is_still_missing() {
     let retry = Duration::from_secs(2);
     let mut b = Backfill::new(retry);
     b.want(1, Want::Everything);
-    assert_eq!(b.requests(&s, t0), vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: Some(4) })]);
+    assert_eq!(
+        b.requests(&s, t0),
+        vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: Some(4), limit: Some(MAX_KEYFRAMES_PER_REQUEST) })]
+    );
     // Part of it came before the timeout.
     s.insert_keyframe(&received(1, 1));
     s.insert_keyframe(&received(1, 4));
-    b.done(1, false, t0);
+    b.done(1, Ended::TimedOut, t0);
     assert!(b.requests(&s, t0 + retry / 2).is_empty(), "asked again before the retry delay");
-    assert_eq!(b.requests(&s, t0 + retry), vec![(1, KeyframeRequest { seqs: vec![2], from_seq: Some(5) })]);
-    b.done(1, true, t0 + retry);
+    assert_eq!(
+        b.requests(&s, t0 + retry),
+        vec![(1, KeyframeRequest { seqs: vec![2], from_seq: Some(5), limit: Some(MAX_KEYFRAMES_PER_REQUEST) })]
+    );
+    b.done(1, Ended::Complete, t0 + retry);
     assert!(b.requests(&s, t0 + retry * 10).is_empty(), "a completed request is not repeated");
+}
+
+#[test]
+fn a_full_request_is_followed_by_the_next_piece_at_once() {
+    let mut s = FleetState::default();
+    s.insert_keyframe(&received(1, 0));
+    let t0 = Instant::now();
+    let mut b = Backfill::new(Duration::from_secs(2));
+    b.want(1, Want::Everything);
+    assert_eq!(b.requests(&s, t0).len(), 1);
+    for seq in 1..=u64::from(MAX_KEYFRAMES_PER_REQUEST) {
+        s.insert_keyframe(&received(1, seq));
+    }
+    b.done(1, Ended::Full, t0);
+    let next = KeyframeRequest {
+        seqs: vec![],
+        from_seq: Some(u64::from(MAX_KEYFRAMES_PER_REQUEST) + 1),
+        limit: Some(MAX_KEYFRAMES_PER_REQUEST),
+    };
+    assert_eq!(b.requests(&s, t0), vec![(1, next)]);
+    b.done(1, Ended::Complete, t0);
+    assert!(b.requests(&s, t0).is_empty(), "the robot had no more");
 }
 
 #[test]
@@ -286,12 +322,16 @@ fn gaps_that_nothing_new_reveals_are_asked_for_again() {
     let mut b = Backfill::new(retry);
     b.want(1, Want::Gaps);
     assert_eq!(b.requests(&s, t0).len(), 1);
-    b.done(1, true, t0);
+    b.done(1, Ended::Complete, t0);
     b.recheck(&s);
     assert!(b.requests(&s, t0 + retry / 2).is_empty(), "the same gaps before the retry delay");
     b.recheck(&s);
     let again = b.requests(&s, t0 + retry);
-    assert_eq!(again, vec![(1, KeyframeRequest { seqs: vec![1], from_seq: None })], "robot 2 has no gap");
+    assert_eq!(
+        again,
+        vec![(1, KeyframeRequest { seqs: vec![1], from_seq: None, limit: Some(MAX_KEYFRAMES_PER_REQUEST) })],
+        "robot 2 has no gap"
+    );
 }
 
 // ---------------------------------------------------------------- stations on loopback
@@ -309,7 +349,10 @@ async fn the_station_backfills_exactly_the_hole() {
     let p = wait_for(&mut progress, "7 keyframes merged", |p| p.total_keyframes() == 7 && p.up_to_date()).await;
     assert_eq!(p.backfilled, 2);
     assert_eq!(p.missing, 0);
-    assert_eq!(*requests.lock().unwrap(), vec![KeyframeRequest { seqs: vec![3, 4], from_seq: None }]);
+    assert_eq!(
+        *requests.lock().unwrap(),
+        vec![KeyframeRequest { seqs: vec![3, 4], from_seq: None, limit: Some(MAX_KEYFRAMES_PER_REQUEST) }]
+    );
     let (map, _) =
         client::fetch_global_map(&client_session(port).await, &fleet(), Duration::from_secs(5)).await.unwrap();
     assert_eq!(map.revision, p.revision);
@@ -330,11 +373,14 @@ async fn the_station_backfills_exactly_the_hole() {
 async fn a_station_started_late_fetches_everything_from_a_live_robot() {
     let (station_session, robot, _) = sessions().await;
     let _token = robot.liveliness().declare_token(keyexpr::alive(&fleet(), 4)).await.unwrap();
-    let requests = fake_store(&robot, 4, (0..5).collect()).await;
+    let requests = fake_store(&robot, 4, (0..20).collect()).await;
     let station = Station::start(station_session, config()).await.unwrap();
     let mut progress = station.progress();
-    wait_for(&mut progress, "the robot's 5 keyframes", |p| p.total_keyframes() == 5 && p.up_to_date()).await;
-    assert_eq!(requests.lock().unwrap()[0], KeyframeRequest { seqs: vec![], from_seq: Some(0) });
+    wait_for(&mut progress, "the robot's 20 keyframes", |p| p.total_keyframes() == 20 && p.up_to_date()).await;
+    // In pieces of the request limit, each asking on from the newest held.
+    let asked: Vec<Option<u64>> = requests.lock().unwrap().iter().map(|r| r.from_seq).collect();
+    assert_eq!(asked[..3], [Some(0), Some(8), Some(16)], "{asked:?}");
+    assert_eq!(requests.lock().unwrap()[0].limit, Some(MAX_KEYFRAMES_PER_REQUEST));
     station.stop().await.unwrap();
 }
 

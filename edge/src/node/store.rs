@@ -37,7 +37,8 @@ impl Store {
         evicted
     }
 
-    /// The held keyframes a request asks for, in sequence order, each once.
+    /// The held keyframes a request asks for, in sequence order, each once; the first `limit` of
+    /// them when it sets one.
     pub(crate) fn select(&self, request: &KeyframeRequest) -> Vec<(u64, ZBytes)> {
         let mut wanted: BTreeMap<u64, ZBytes> = BTreeMap::new();
         for seq in &request.seqs {
@@ -48,7 +49,8 @@ impl Store {
         if let Some(from) = request.from_seq {
             wanted.extend(self.held.range(from..).map(|(s, p)| (*s, p.clone())));
         }
-        wanted.into_iter().collect()
+        let limit = request.limit.map_or(usize::MAX, |l| l as usize);
+        wanted.into_iter().take(limit).collect()
     }
 }
 
@@ -65,13 +67,21 @@ mod tests {
     }
 
     #[test]
+    fn a_limit_keeps_the_lowest_sequence_numbers() {
+        let mut store = Store::new(1000);
+        (0..10).for_each(|s| assert_eq!(store.insert(s, payload(10)), None));
+        let request = KeyframeRequest { seqs: vec![7, 2], from_seq: Some(5), limit: Some(3) };
+        assert_eq!(seqs(&store, request), vec![2, 5, 6]);
+    }
+
+    #[test]
     fn requests_get_listed_and_trailing_seqs_once() {
         let mut store = Store::new(1000);
         (0..6).for_each(|s| assert_eq!(store.insert(s, payload(10)), None));
-        let request = KeyframeRequest { seqs: vec![4, 1, 3, 99, 1], from_seq: Some(4) };
+        let request = KeyframeRequest { seqs: vec![4, 1, 3, 99, 1], from_seq: Some(4), limit: None };
         assert_eq!(seqs(&store, request), vec![1, 3, 4, 5]);
         assert_eq!(seqs(&store, KeyframeRequest::default()), Vec::<u64>::new());
-        assert_eq!(seqs(&store, KeyframeRequest { seqs: vec![], from_seq: Some(6) }), Vec::<u64>::new());
+        assert_eq!(seqs(&store, KeyframeRequest { seqs: vec![], from_seq: Some(6), limit: None }), Vec::<u64>::new());
     }
 
     #[test]
@@ -82,6 +92,6 @@ mod tests {
         assert_eq!(store.insert(2, payload(10)), Some(0..=0));
         assert_eq!(store.insert(3, payload(20)), Some(1..=2));
         assert_eq!(store.insert(4, payload(40)), Some(3..=3));
-        assert_eq!(seqs(&store, KeyframeRequest { seqs: vec![0, 1, 2, 3], from_seq: Some(0) }), vec![4]);
+        assert_eq!(seqs(&store, KeyframeRequest { seqs: vec![0, 1, 2, 3], from_seq: Some(0), limit: None }), vec![4]);
     }
 }

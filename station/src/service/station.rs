@@ -18,7 +18,7 @@ use zenoh::qos::CongestionControl;
 use zenoh::query::{ConsolidationMode, Query, Queryable};
 use zenoh::sample::{Sample, SampleKind};
 
-use super::backfill::{Backfill, Want};
+use super::backfill::{Backfill, Ended, Want};
 use super::client::global_map_cloud;
 use super::fleet_state::{Basis, FleetState, Inserted, ReceivedKeyframe};
 use super::ingest::{self, Malformed};
@@ -216,8 +216,8 @@ impl Endpoints {
 enum Event {
     /// A reply to a backfill request to `robot`: a keyframe, or the robot's newest pose graph.
     Reply { robot: u32, sample: Sample },
-    /// The backfill request to `robot` has completed.
-    BackfillDone { robot: u32, complete: bool },
+    /// The backfill request to `robot` has ended, as said.
+    BackfillDone { robot: u32, ended: Ended },
 }
 
 /// Where a keyframe came from.
@@ -444,7 +444,7 @@ impl Core {
                     _ => self.on_keyframe(robot, key, &bytes, Origin::Backfill),
                 }
             }
-            Event::BackfillDone { robot, complete } => self.backfill.done(robot, complete, Instant::now()),
+            Event::BackfillDone { robot, ended } => self.backfill.done(robot, ended, Instant::now()),
         }
     }
 
@@ -648,6 +648,8 @@ const FETCH_RETRY: Duration = Duration::from_millis(500);
 struct Asked {
     /// Replies, samples and errors.
     answers: usize,
+    /// Replies that were samples (keyframes, for a keyframe request).
+    keyframes: usize,
     /// An error reply came: the query timed out (zenoh's own reply then) or the robot refused it.
     failed: bool,
 }
@@ -674,6 +676,7 @@ async fn ask(
                 out.answers += 1;
                 match reply.result() {
                     Ok(sample) => {
+                        out.keyframes += 1;
                         let _ = events.send(Event::Reply { robot, sample: sample.clone() });
                     }
                     Err(e) => {
@@ -751,5 +754,11 @@ async fn fetch(
     } else {
         ask(&session, &key, robot, Some(&payload), &events).await
     };
-    let _ = events.send(Event::BackfillDone { robot, complete: !asked.failed });
+    let full = request.limit.is_some_and(|limit| asked.keyframes >= limit as usize);
+    let ended = match (asked.failed, full) {
+        (true, _) => Ended::TimedOut,
+        (false, true) => Ended::Full,
+        (false, false) => Ended::Complete,
+    };
+    let _ = events.send(Event::BackfillDone { robot, ended });
 }
