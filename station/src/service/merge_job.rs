@@ -163,13 +163,21 @@ impl MergeWorker {
         }
         let local = self.maps.get_mut(&r.robot).expect("inserted above");
         let images = self.images.entry(r.robot).or_default();
-        for kf in decode_missing(r, local, images, &self.merger.config().visibility) {
-            if let Some(image) = kf.image {
-                images.insert(kf.seq, image);
-            }
-            if local.included.insert(kf.seq) {
-                let pose = kf.pose.cast::<f32>();
-                local.map.insert(kf.cloud.points.iter().map(|p| pose * p));
+        let missing: Vec<&PlacedKeyframe> = r
+            .keyframes
+            .iter()
+            .filter(|kf| !local.included.contains(&kf.seq) || !images.contains_key(&kf.seq))
+            .collect();
+        // A piece at a time: a rebuild at new poses decodes every keyframe of the robot.
+        for piece in missing.chunks(DECODED_AT_ONCE) {
+            for kf in decode(r.robot, piece, images, &self.merger.config().visibility) {
+                if let Some(image) = kf.image {
+                    images.insert(kf.seq, image);
+                }
+                if local.included.insert(kf.seq) {
+                    let pose = kf.pose.cast::<f32>();
+                    local.map.insert(kf.cloud.points.iter().map(|p| pose * p));
+                }
             }
         }
         local.revision = r.revision;
@@ -219,26 +227,28 @@ struct Decoded {
     image: Option<Arc<RangeImage>>,
 }
 
-/// Decodes, in parallel, the keyframes of `r` that `local` does not hold yet or that have no range
-/// image, and makes the missing images (once per keyframe: in the sensor frame, new poses only
-/// move them). A keyframe that no longer decodes (it passed the checks when it arrived) is logged
-/// and left out.
-fn decode_missing(
-    r: &RobotSnapshot,
-    local: &LocalMap,
+/// Keyframes decoded together: enough to keep the cores busy, few enough that their points (about
+/// 144 kB each) stay a few megabytes while a robot's whole map is rebuilt.
+const DECODED_AT_ONCE: usize = 64;
+
+/// Decodes `keyframes` of `robot` in parallel and makes the range images it has not got (once per
+/// keyframe: in the sensor frame, new poses only move them). A keyframe that no longer decodes (it
+/// passed the checks when it arrived) is logged and left out.
+fn decode(
+    robot: u32,
+    keyframes: &[&PlacedKeyframe],
     images: &BTreeMap<u64, Arc<RangeImage>>,
     config: &VisibilityConfig,
 ) -> Vec<Decoded> {
-    r.keyframes
+    keyframes
         .par_iter()
-        .filter(|kf| !local.included.contains(&kf.seq) || !images.contains_key(&kf.seq))
         .filter_map(|kf| match ingest::held_cloud(&kf.bytes) {
             Ok(cloud) => {
                 let image = (!images.contains_key(&kf.seq)).then(|| Arc::new(RangeImage::new(&cloud.points, config)));
                 Some(Decoded { seq: kf.seq, pose: kf.pose, cloud, image })
             }
             Err(e) => {
-                tracing::error!("robot {} keyframe {} no longer decodes, left out of its map: {e}", r.robot, kf.seq);
+                tracing::error!("robot {robot} keyframe {} no longer decodes, left out of its map: {e}", kf.seq);
                 None
             }
         })
