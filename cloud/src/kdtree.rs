@@ -6,6 +6,8 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Point3;
 use rayon::prelude::*;
 
+use crate::memory::HeapSize;
+
 /// One neighbour: the index of the point in the slice the tree was built from, and its squared distance.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Neighbour {
@@ -45,17 +47,7 @@ impl KdTree {
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }
-}
 
-impl crate::memory::HeapSize for KdTree {
-    /// kiddo's immutable tree keeps a copy of each point and its `u32` index in its leaves; the
-    /// stems, one split value per leaf, are left out.
-    fn heap_bytes(&self) -> usize {
-        self.len * (std::mem::size_of::<[f32; 3]>() + std::mem::size_of::<u32>())
-    }
-}
-
-impl KdTree {
     /// The nearest point to `q`.
     pub fn nearest(&self, q: &[f32; 3]) -> Option<Neighbour> {
         let r = self.tree.as_ref()?.query(q).nearest_one::<SquaredEuclidean<f32>>().execute();
@@ -96,6 +88,14 @@ impl KdTree {
     /// `knn` for many queries at once, in parallel; one result per query, in query order.
     pub fn knn_batch(&self, queries: &[[f32; 3]], k: usize) -> Vec<Vec<Neighbour>> {
         queries.par_iter().map(|q| self.knn(q, k)).collect()
+    }
+}
+
+impl HeapSize for KdTree {
+    /// kiddo's immutable tree keeps a copy of each point and its `u32` index in its leaves; the
+    /// stems, one split value per leaf, are left out.
+    fn heap_bytes(&self) -> usize {
+        self.len * (std::mem::size_of::<[f32; 3]>() + std::mem::size_of::<u32>())
     }
 }
 

@@ -117,21 +117,21 @@ pub trait HeapSize {
 }
 
 /// Bytes of a vector's buffer.
-pub fn vec_bytes<T>(v: &[T], capacity: usize) -> usize {
-    capacity.max(v.len()) * std::mem::size_of::<T>()
+pub fn vec_bytes<T>(v: &Vec<T>) -> usize {
+    v.capacity() * std::mem::size_of::<T>()
 }
 
-/// Bytes of a hash map's buffer: keys, values and one control byte per bucket.
-pub fn map_bytes<K, V>(buckets: usize) -> usize {
-    buckets * (std::mem::size_of::<(K, V)>() + 1)
+/// Bytes of a hash map's buffer for `capacity` entries: keys, values and one control byte each.
+pub fn map_bytes<K, V>(capacity: usize) -> usize {
+    capacity * (std::mem::size_of::<(K, V)>() + 1)
 }
 
 impl HeapSize for crate::PointCloud {
     fn heap_bytes(&self) -> usize {
-        vec_bytes(&self.points, self.points.capacity())
-            + self.intensity.as_ref().map_or(0, |v| vec_bytes(v, v.capacity()))
-            + self.ring.as_ref().map_or(0, |v| vec_bytes(v, v.capacity()))
-            + self.time.as_ref().map_or(0, |v| vec_bytes(v, v.capacity()))
+        vec_bytes(&self.points)
+            + self.intensity.as_ref().map_or(0, vec_bytes)
+            + self.ring.as_ref().map_or(0, vec_bytes)
+            + self.time.as_ref().map_or(0, vec_bytes)
     }
 }
 

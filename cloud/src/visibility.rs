@@ -119,7 +119,7 @@ pub struct RangeImage {
 
 impl HeapSize for RangeImage {
     fn heap_bytes(&self) -> usize {
-        vec_bytes(&self.cells, self.cells.capacity())
+        vec_bytes(&self.cells)
     }
 }
 

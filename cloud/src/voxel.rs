@@ -35,7 +35,7 @@ struct Cells<T> {
 
 impl<T> HeapSize for Cells<T> {
     fn heap_bytes(&self) -> usize {
-        map_bytes::<VoxelKey, usize>(self.slot.capacity()) + vec_bytes(&self.cells, self.cells.capacity())
+        map_bytes::<VoxelKey, usize>(self.slot.capacity()) + vec_bytes(&self.cells)
     }
 }
 

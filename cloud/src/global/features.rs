@@ -49,9 +49,7 @@ pub struct Features {
 
 impl HeapSize for Features {
     fn heap_bytes(&self) -> usize {
-        self.surfels.heap_bytes()
-            + vec_bytes(&self.keypoints, self.keypoints.capacity())
-            + vec_bytes(&self.descriptors, self.descriptors.capacity())
+        self.surfels.heap_bytes() + vec_bytes(&self.keypoints) + vec_bytes(&self.descriptors)
     }
 }
 

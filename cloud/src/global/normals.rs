@@ -171,20 +171,14 @@ impl Neighbourhoods {
 
 impl HeapSize for Neighbourhoods {
     fn heap_bytes(&self) -> usize {
-        self.blocks
-            .iter()
-            .map(|b| vec_bytes(&b.offsets, b.offsets.capacity()) + vec_bytes(&b.entries, b.entries.capacity()))
-            .sum::<usize>()
-            + vec_bytes(&self.blocks, self.blocks.capacity())
+        self.blocks.iter().map(|b| vec_bytes(&b.offsets) + vec_bytes(&b.entries)).sum::<usize>()
+            + vec_bytes(&self.blocks)
     }
 }
 
 impl HeapSize for Surfels {
     fn heap_bytes(&self) -> usize {
-        vec_bytes(&self.points, self.points.capacity())
-            + vec_bytes(&self.normals, self.normals.capacity())
-            + self.tree.heap_bytes()
-            + self.neighbourhoods.heap_bytes()
+        vec_bytes(&self.points) + vec_bytes(&self.normals) + self.tree.heap_bytes() + self.neighbourhoods.heap_bytes()
     }
 }
 

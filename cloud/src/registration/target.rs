@@ -87,9 +87,7 @@ impl GaussianCloud {
 
 impl HeapSize for GaussianCloud {
     fn heap_bytes(&self) -> usize {
-        vec_bytes(&self.points, self.points.capacity())
-            + vec_bytes(&self.covariances, self.covariances.capacity())
-            + self.tree.heap_bytes()
+        vec_bytes(&self.points) + vec_bytes(&self.covariances) + self.tree.heap_bytes()
     }
 }
 

@@ -223,10 +223,17 @@ fn status_fields(s: &StationStatus) -> Value {
         "last_merge_ms": round3(s.last_merge_ms),
         "revision": s.global_map_revision,
         "malformed": s.malformed_payloads,
-        "memory_mb": s.memory.iter().map(|m| {
-            json!({ "robot": m.robot, "keyframes": round3(m.keyframe_bytes as f64 / 1e6), "map": round3(m.map_bytes as f64 / 1e6) })
-        }).collect::<Vec<_>>(),
+        "memory_mb": memory_mb(&s.memory),
     })
+}
+
+/// What a station holds per robot, MB to the kilobyte: `[{robot, keyframes, map}]`.
+pub fn memory_mb(memory: &[proto::RobotMemory]) -> Value {
+    let mb = |bytes: u64| round3(bytes as f64 / 1e6);
+    memory
+        .iter()
+        .map(|m| json!({ "robot": m.robot, "keyframes": mb(m.keyframe_bytes), "map": mb(m.map_bytes) }))
+        .collect()
 }
 
 fn round3(v: f64) -> f64 {

@@ -72,6 +72,8 @@ pub struct Basis {
 #[derive(Clone, Debug, Default)]
 pub struct RobotState {
     keyframes: BTreeMap<u64, HeldKeyframe>,
+    /// Bytes of `keyframes`, kept as they are inserted: the station reports it after every sample.
+    keyframe_bytes: u64,
     /// Optimised poses of the latest pose-graph revision, by sequence number.
     poses: BTreeMap<u64, Isometry3<f64>>,
     /// Newest pose-graph revision accepted.
@@ -135,7 +137,7 @@ impl RobotState {
 
     /// Bytes of the keyframes held, as received.
     pub fn keyframe_bytes(&self) -> u64 {
-        self.keyframes.values().map(|k| k.bytes.len() as u64).sum()
+        self.keyframe_bytes
     }
 
     /// Conflicting keyframes seen (same sequence number, different bytes).
@@ -167,6 +169,7 @@ impl FleetState {
             }
             None => {
                 robot.keyframes.insert(keyframe.seq, keyframe.held());
+                robot.keyframe_bytes += keyframe.bytes.len() as u64;
                 robot.revision += 1;
                 Inserted::New
             }

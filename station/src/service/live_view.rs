@@ -11,6 +11,7 @@ use nalgebra::{Isometry3, Point3};
 use proto::{GlobalMap, MergeStatus, StationStatus};
 use serde_json::json;
 
+use super::client::memory_mb;
 use super::fleet_state::{FleetState, ReceivedKeyframe, RobotState};
 use super::ingest::LoopEdge;
 use super::merge_job::MapCloud;
@@ -85,11 +86,7 @@ impl StationView {
                 "last_merge_ms": status.last_merge_ms,
                 "global_map_revision": status.global_map_revision,
                 "malformed_payloads": status.malformed_payloads,
-                "memory_mb": status.memory.iter().map(|m| json!({
-                    "robot": m.robot,
-                    "keyframes": m.keyframe_bytes as f64 / 1e6,
-                    "map": m.map_bytes as f64 / 1e6,
-                })).collect::<Vec<_>>(),
+                "memory_mb": memory_mb(&status.memory),
             })
         });
     }
