@@ -17,6 +17,7 @@ pub mod ordered_tree;
 pub mod point_cloud;
 pub mod preset;
 pub mod registration;
+pub mod scan_context;
 pub mod se3;
 pub mod stopwatch;
 pub mod trajectory;

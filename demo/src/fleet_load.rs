@@ -18,6 +18,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use cloud::memory::{peak_rss_mb, rss_mb};
+use cloud::scan_context::{ScanContext, ScanContextConfig};
 use cloud::se3::{PoseError, pose_error};
 use edge::odometry::Keyframe;
 use edge::odometry::stats::Spread;
@@ -401,8 +402,11 @@ fn prepare(config: &LoadConfig, per_robot: usize) -> Result<Prepared, LoadError>
                     // up to 20 cm, which no edge sends.
                     let cloud = cloud::voxel::downsample(&sim.deskewed(&scan), config.voxel)
                         .map_err(|e| LoadError::Prepare(e.to_string()))?;
+                    // With its place descriptor, as every robot sends it (the outdoor one: the
+                    // station's preset here is outdoor).
+                    let context = ScanContext::new(&cloud, &ScanContextConfig::default());
                     let kf = Keyframe { seq: k as u64, frame: k, pose: origin * scan.ground_truth, cloud };
-                    keyframe_message(fleet, i as u32 + 1, &kf, scan.stamp, None, &CodecConfig::default())
+                    keyframe_message(fleet, i as u32 + 1, &kf, scan.stamp, Some(&context), &CodecConfig::default())
                         .map(|m| m.encode_to_vec())
                         .map_err(|e| LoadError::Prepare(e.to_string()))
                 })

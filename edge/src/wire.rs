@@ -6,8 +6,8 @@ use proto::codec::{self, CodecConfig, DecodeError, DecodeLimits, EncodeError};
 use proto::{CompressedCloud, Fleet, InvalidPose, Pose, Timestamp};
 
 use crate::loops::LoopCloser;
-use crate::loops::scan_context::ScanContext;
 use crate::odometry::Keyframe;
+use cloud::scan_context::ScanContext;
 
 /// Largest keyframe cloud [`keyframe_cloud`] decodes: a voxel-downsampled scan has thousands of
 /// points, so this bounds what a corrupt message can make a receiver allocate (~70 MB).
@@ -70,7 +70,7 @@ pub fn keyframe_message(
         seq: kf.seq,
         stamp: Some(Timestamp::from_secs_f64(stamp_s)),
         odom_pose: Some(Pose::from(&kf.pose)),
-        scan_context: context.map(ScanContext::to_message),
+        scan_context: context.map(proto::ScanContext::from),
         cloud: Some(CompressedCloud { data: data.into(), points: kf.cloud.len() as u64 }),
     })
 }

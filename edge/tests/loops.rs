@@ -6,9 +6,9 @@
 use cloud::PointCloud;
 use cloud::Preset;
 use cloud::formats::read_cloud;
+use cloud::scan_context::ScanContext;
 use cloud::se3::{from_matrix, pose_error};
 use edge::loops::LoopConfig;
-use edge::loops::scan_context::ScanContext;
 use edge::loops::track::LoopTrack;
 use edge::loops::verify::{self, Verdict};
 use edge::odometry::pipeline;

@@ -7,10 +7,12 @@
 pub mod codec;
 pub mod keyexpr;
 mod pose;
+mod scan_context;
 mod timestamp;
 
 pub use keyexpr::{Fleet, Topic};
 pub use pose::InvalidPose;
+pub use scan_context::InvalidScanContext;
 
 /// Generated message types of package `emr.v1`.
 pub mod v1 {

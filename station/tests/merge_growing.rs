@@ -9,7 +9,7 @@ use station::merge::merger::MergerStats;
 use station::merge::{MapStatus, MergeConfig, MergeReport, Merger, Unmerged};
 
 mod truth;
-use truth::worst_error;
+use truth::{merge_until_done, worst_error};
 
 /// One robot's exact map after each of `steps` equal shares of its run, every `stride`-th sweep.
 fn growing_maps(sim: &Simulator, steps: usize, stride: usize, voxel: f32) -> Vec<PointCloud> {
@@ -44,23 +44,7 @@ fn merge_as_they_grow(fleet: &Fleet, config: MergeConfig) -> (MergeReport, Merge
         for (id, maps) in fleet.maps.iter().enumerate() {
             merger.grow(id, step as u64, maps[step].clone());
         }
-        loop {
-            let report = merger.merge().unwrap();
-            let (t, r) = worst_error(&report, &fleet.frames);
-            println!(
-                "step {step}: merged {} of {}, pending {}, worst {t:.3} m {r:.2} deg, {:?}",
-                report.merged(),
-                report.maps.len(),
-                report.pending,
-                merger.stats()
-            );
-            assert!(t < 0.05 && r < 0.5, "step {step}: a placement {t:.3} m / {r:.2} deg off the truth");
-            let pending = report.pending;
-            last = Some(report);
-            if pending == 0 {
-                break;
-            }
-        }
+        last = Some(merge_until_done(&mut merger, &fleet.frames, step, false));
     }
     (last.unwrap(), merger.stats())
 }

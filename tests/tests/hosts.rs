@@ -32,7 +32,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use edge::loops::scan_context::RINGS;
+use cloud::scan_context::RINGS;
 use nalgebra::Isometry3;
 use proto::GlobalMap;
 use tests::hosts::{self, Hosts};

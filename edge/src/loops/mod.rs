@@ -3,8 +3,8 @@
 //! other loops, and the keyframe pose graph is re-optimised when the accepted loops change.
 //!
 //! Per keyframe ([`LoopCloser::add`]):
-//! 1. [`scan_context`]: the Scan Context descriptor and its ring key;
-//! 2. [`candidates`]: the `candidates` nearest ring keys among keyframes at least
+//! 1. [`cloud::scan_context`]: the Scan Context descriptor and its ring key;
+//! 2. candidates: the `candidates` nearest ring keys among keyframes at least
 //!    `exclude_recent_m` metres of path behind, then the best by the full descriptor distance;
 //! 3. [`verify`]: the keyframe registered against a submap around the best candidate, from the
 //!    descriptor's yaw, accepted on overlap and constraint;
@@ -14,10 +14,8 @@
 //!
 //! No I/O: the odometry pipeline and the node call it and write or publish what it says.
 
-pub mod candidates;
 pub mod consistency;
 pub mod graph;
-pub mod scan_context;
 pub mod track;
 pub mod verify;
 
@@ -33,10 +31,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::odometry::Keyframe;
 use crate::pose_graph::{Edge, EdgeKind, PoseGraph, PoseGraphError, Report};
-use candidates::RingKeyIndex;
+use cloud::scan_context::{RingKeyIndex, ScanContext, ScanContextConfig};
 use consistency::{ConsistencyConfig, LoopView};
 use graph::{GraphConfig, KeyframeGraph};
-use scan_context::{ScanContext, ScanContextConfig};
 use verify::{Fit, Verdict, VerifyConfig};
 
 /// Settings of the loop closure, one section per step.

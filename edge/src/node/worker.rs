@@ -14,11 +14,11 @@ use tracing::{error, warn};
 
 use super::{NodeError, Rate};
 use crate::loops::LoopCloser;
-use crate::loops::scan_context::{ScanContext, ScanContextConfig};
 use crate::odometry::{Keyframe, Odometry};
 use crate::source::{Source, SourceScan};
 use crate::wire;
 use cloud::memory::release_periodically;
+use cloud::scan_context::{ScanContext, ScanContextConfig};
 
 /// One registered scan, as the async half needs it.
 #[derive(Debug)]

@@ -58,6 +58,10 @@ pub enum PairRejection {
     /// ([`MergeConfig::max_searches`]); a later merge takes it up.
     #[error("not estimated yet (search budget spent on other pairs)")]
     Pending,
+    /// Not searched: no keyframe of either map looks like one of the other's (their place
+    /// descriptors, see [`super::places`]). Compared again as the maps grow.
+    #[error("no place of either map looks like one of the other's")]
+    NoCandidate,
     /// The global registration's reliability checks failed.
     #[error(transparent)]
     Pairwise(Rejection),

@@ -53,11 +53,13 @@
 //! a reason, never a panic.
 
 pub mod ambiguity;
+mod assembly;
 pub mod estimate;
 pub mod files;
 pub mod graph;
 pub mod map;
 pub mod merger;
+pub mod places;
 
 use std::time::Duration;
 
@@ -67,6 +69,7 @@ use cloud::{PointCloud, Preset};
 use nalgebra::Isometry3;
 
 use crate::pairwise::{FeatureError, PairwiseConfig};
+use places::PlaceConfig;
 
 pub use estimate::{Edge, PairRejection, PairVerdict, estimate_pair, track_pair};
 pub use map::PreparedMap;
@@ -191,6 +194,9 @@ pub struct MergeConfig {
     pub min_acceptance: f64,
     /// Surfels of each map judged against the other's views (default 5,000).
     pub acceptance_samples: usize,
+    /// How the maps' place descriptors are compared for candidate overlaps (default
+    /// [`PlaceConfig::default`]). Used only for maps given their places ([`Merger::set_places`]).
+    pub places: PlaceConfig,
 }
 
 impl Default for MergeConfig {
@@ -236,6 +242,7 @@ impl MergeConfig {
             visibility: VisibilityConfig::outdoor(),
             min_acceptance: DEFAULT_MIN_ACCEPTANCE,
             acceptance_samples: 5_000,
+            places: PlaceConfig::default(),
         }
     }
 
@@ -291,11 +298,13 @@ impl MergeConfig {
             && self.max_searches > 0
             && (0.0..=1.0).contains(&self.min_acceptance)
             && self.acceptance_samples > 0
+            && self.places.candidates > 0
+            && (0.0..=1.0).contains(&self.places.max_distance)
             && positive(self.refine.voxel_resolution)
             && positive(self.refine.max_correspondence_distance);
         if !ok {
             return Err(MergeError::Config(FeatureError::InvalidConfig(
-                "merge voxels, refinement limits, growth shares, max_searches and min_confidence must be positive and finite, min_acceptance within [0, 1]",
+                "merge voxels, refinement limits, growth shares, max_searches, place candidates and min_confidence must be positive and finite, min_acceptance and the place max_distance within [0, 1]",
             )));
         }
         Ok(())
@@ -422,6 +431,8 @@ pub struct MergeTiming {
     pub features: Duration,
     /// Pairwise estimates of the pairs that changed.
     pub pairs: Duration,
+    /// Of `pairs`: comparing the places of the pairs waiting for a search.
+    pub places: Duration,
     /// Spanning tree, reference and chaining.
     pub graph: Duration,
     /// Union and voxel grid of the global map.

@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use cloud::PointCloud;
+use cloud::scan_context::ScanContext;
 use nalgebra::Isometry3;
 use prost::Message;
 use proto::codec::{self, DecodeLimits};
@@ -106,11 +107,20 @@ fn pose(p: Option<&proto::Pose>) -> Result<Isometry3<f64>, String> {
     Isometry3::try_from(p).map_err(|e| e.to_string())
 }
 
-/// The cloud of a keyframe held as its bytes (checked by [`keyframe`] when it arrived), decoded
-/// again: what the merge does when it needs the points.
-pub fn held_cloud(bytes: &[u8]) -> Result<PointCloud, String> {
+/// A keyframe held as its bytes (checked by [`keyframe`] when it arrived), decoded again: what the
+/// merge does when it needs the points.
+pub fn held_keyframe(bytes: &[u8]) -> Result<HeldKeyframe, String> {
     let kf: Keyframe = decode(bytes, MAX_KEYFRAME_BYTES)?;
-    keyframe_cloud(&kf)
+    let context = kf.scan_context.as_ref().map(|m| ScanContext::try_from(m).map_err(|e| e.to_string()));
+    Ok(HeldKeyframe { cloud: keyframe_cloud(&kf)?, context })
+}
+
+/// A held keyframe as the merge uses it.
+pub struct HeldKeyframe {
+    /// Its points, in the sensor frame.
+    pub cloud: PointCloud,
+    /// Its place descriptor, when it came with one (an unusable one says why).
+    pub context: Option<Result<ScanContext, String>>,
 }
 
 /// The keyframe's cloud, positions only (the merge uses nothing else; channels would only cost

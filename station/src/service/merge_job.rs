@@ -6,7 +6,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use cloud::PointCloud;
-use cloud::memory::{HeapSize, map_bytes};
+use cloud::memory::{HeapSize, map_bytes, vec_bytes};
+use cloud::scan_context::Comparable;
 use cloud::visibility::{RangeImage, View, Views, VisibilityConfig};
 use cloud::voxel::VoxelMap;
 use nalgebra::Isometry3;
@@ -18,6 +19,7 @@ use rustc_hash::FxHashSet;
 
 use super::fleet_state::{Basis, FleetState};
 use super::ingest;
+use crate::merge::places::Places;
 use crate::merge::{MergeConfig, MergeError, MergeReport, Merger, PairVerdict};
 
 /// One robot's input to a job: its keyframe clouds with their poses, at one map revision.
@@ -107,14 +109,56 @@ pub struct MergeWorker {
     maps: BTreeMap<u32, LocalMap>,
     /// Per robot, each keyframe's range image (sensor frame: new poses only move it).
     images: BTreeMap<u32, BTreeMap<u64, Arc<RangeImage>>>,
+    /// Per robot, its keyframes' place descriptors (independent of poses).
+    places: BTreeMap<u32, RobotPlaces>,
     voxel: f32,
+}
+
+/// One robot's place descriptors, in the order its keyframes were first decoded.
+#[derive(Default)]
+struct RobotPlaces {
+    seen: FxHashSet<u64>,
+    /// `None` for a keyframe that came without a usable descriptor.
+    contexts: Vec<Option<Arc<Comparable>>>,
+    /// The places given to the merger last, and of how many keyframes.
+    given: Option<(usize, Arc<Places>)>,
+}
+
+impl RobotPlaces {
+    /// The robot's places, when every keyframe has a descriptor (a map described in part could
+    /// overlap another where it is not described).
+    fn places(&mut self) -> Option<Arc<Places>> {
+        if let Some((n, places)) = &self.given
+            && *n == self.contexts.len()
+        {
+            return Some(Arc::clone(places));
+        }
+        let contexts: Vec<Arc<Comparable>> = self.contexts.iter().cloned().collect::<Option<_>>()?;
+        let places = Arc::new(Places::new(contexts));
+        self.given = Some((self.contexts.len(), Arc::clone(&places)));
+        Some(places)
+    }
+
+    fn heap_bytes(&self) -> usize {
+        let contexts: usize = self.contexts.iter().flatten().map(|c| c.heap_bytes()).sum();
+        contexts
+            + vec_bytes(&self.contexts)
+            + map_bytes::<u64, ()>(self.seen.capacity())
+            + self.given.as_ref().map_or(0, |(_, p)| p.index_bytes())
+    }
 }
 
 impl MergeWorker {
     /// A worker with an empty merger.
     pub fn new(config: MergeConfig) -> Result<Self, MergeError> {
         let voxel = local_map_voxel(&config);
-        Ok(Self { merger: Merger::new(config)?, maps: BTreeMap::new(), images: BTreeMap::new(), voxel })
+        Ok(Self {
+            merger: Merger::new(config)?,
+            maps: BTreeMap::new(),
+            images: BTreeMap::new(),
+            places: BTreeMap::new(),
+            voxel,
+        })
     }
 
     /// Merges the robots' current maps into global map `revision` of `fleet`; `settle` when the
@@ -163,6 +207,7 @@ impl MergeWorker {
         }
         let local = self.maps.get_mut(&r.robot).expect("inserted above");
         let images = self.images.entry(r.robot).or_default();
+        let places = self.places.entry(r.robot).or_default();
         let missing: Vec<&PlacedKeyframe> = r
             .keyframes
             .iter()
@@ -174,12 +219,16 @@ impl MergeWorker {
                 if let Some(image) = kf.image {
                     images.insert(kf.seq, image);
                 }
+                if places.seen.insert(kf.seq) {
+                    places.contexts.push(kf.context);
+                }
                 if local.included.insert(kf.seq) {
                     let pose = kf.pose.cast::<f32>();
                     local.map.insert(kf.cloud.points.iter().map(|p| pose * p));
                 }
             }
         }
+        let given = places.places();
         local.revision = r.revision;
         if rebuilt {
             self.merger.update(id, r.revision, local.map.cloud());
@@ -188,10 +237,11 @@ impl MergeWorker {
         }
         let views = self.views(r);
         self.merger.set_views(id, Arc::new(views));
+        self.merger.set_places(id, given);
     }
 
-    /// Per robot, the bytes kept for it between jobs: its local map, its keyframes' range images,
-    /// and the merger's copy of its map with the map's preparation (features, Gaussians).
+    /// Per robot, the bytes kept for it between jobs: its local map, its keyframes' range images
+    /// and place descriptors, and the merger's copy of its map with the map's preparation (features, Gaussians).
     pub fn memory(&self) -> BTreeMap<u32, u64> {
         self.maps
             .iter()
@@ -201,8 +251,9 @@ impl MergeWorker {
                         + held.len() * std::mem::size_of::<(u64, Arc<RangeImage>)>()
                 });
                 let merger = self.merger.heap_bytes_of(robot as usize).unwrap_or(0);
+                let places = self.places.get(&robot).map_or(0, RobotPlaces::heap_bytes);
                 let included = map_bytes::<u64, ()>(local.included.capacity());
-                (robot, (local.map.heap_bytes() + included + images + merger) as u64)
+                (robot, (local.map.heap_bytes() + included + images + places + merger) as u64)
             })
             .collect()
     }
@@ -225,6 +276,8 @@ struct Decoded {
     pose: Isometry3<f64>,
     cloud: PointCloud,
     image: Option<Arc<RangeImage>>,
+    /// Its place descriptor, laid out for comparing; `None` without a usable one.
+    context: Option<Arc<Comparable>>,
 }
 
 /// Keyframes decoded together: enough to keep the cores busy, few enough that their points (about
@@ -242,10 +295,19 @@ fn decode(
 ) -> Vec<Decoded> {
     keyframes
         .par_iter()
-        .filter_map(|kf| match ingest::held_cloud(&kf.bytes) {
-            Ok(cloud) => {
+        .filter_map(|kf| match ingest::held_keyframe(&kf.bytes) {
+            Ok(held) => {
+                let cloud = held.cloud;
                 let image = (!images.contains_key(&kf.seq)).then(|| Arc::new(RangeImage::new(&cloud.points, config)));
-                Some(Decoded { seq: kf.seq, pose: kf.pose, cloud, image })
+                let context = match held.context {
+                    Some(Ok(c)) => Some(Arc::new(Comparable::new(&c))),
+                    Some(Err(e)) => {
+                        tracing::warn!("robot {robot} keyframe {}: unusable scan context ({e}); the robot's map is searched against every other", kf.seq);
+                        None
+                    }
+                    None => None,
+                };
+                Some(Decoded { seq: kf.seq, pose: kf.pose, cloud, image, context })
             }
             Err(e) => {
                 tracing::error!("robot {robot} keyframe {} no longer decodes, left out of its map: {e}", kf.seq);
@@ -287,9 +349,10 @@ fn log_report(report: &MergeReport) {
     let t = &report.timing;
     let ms = cloud::stopwatch::millis;
     tracing::info!(
-        "merge: features {:.0} ms, pairs {:.0} ms, graph {:.0} ms, assembly {:.0} ms",
+        "merge: features {:.0} ms, pairs {:.0} ms (places {:.0} ms), graph {:.0} ms, assembly {:.0} ms",
         ms(t.features),
         ms(t.pairs),
+        ms(t.places),
         ms(t.graph),
         ms(t.assemble)
     );

@@ -7,11 +7,19 @@
 //! (eq. 4); the shift is the yaw between the two scans. Two cheaper keys find candidates first: the
 //! ring key (eq. 7, a ring's mean, invariant to yaw) for the k-d tree, and the sector key (a
 //! sector's mean) for aligning the columns before the fine shift search (as the authors' code does).
+//!
+//! Both sides use it: a robot to find its own loops, the station to find where two robots' maps
+//! may overlap.
 
 use std::f64::consts::TAU;
 
-use cloud::PointCloud;
+use std::num::NonZero;
+
+use kiddo::{MutableKdTree, SquaredEuclidean};
 use serde::{Deserialize, Serialize};
+
+use crate::PointCloud;
+use crate::memory::{HeapSize, vec_bytes};
 
 /// How descriptors are made and compared.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -66,6 +74,12 @@ pub struct Match {
     pub yaw: f64,
 }
 
+impl HeapSize for ScanContext {
+    fn heap_bytes(&self) -> usize {
+        vec_bytes(&self.cells)
+    }
+}
+
 impl ScanContext {
     /// The descriptor of `scan` (sensor frame, z up), eq. (1): the maximum height per cell.
     pub fn new(scan: &PointCloud, config: &ScanContextConfig) -> Self {
@@ -101,12 +115,58 @@ impl ScanContext {
 
     /// Eq. (5): the distance to `other` at the best column shift near the sector-key alignment.
     pub fn distance(&self, other: &ScanContext, window: usize) -> Match {
+        Comparable::new(self).distance(&Comparable::new(other), window)
+    }
+
+    /// The cells of sector `s`, ring by ring.
+    fn column(&self, s: usize) -> impl Iterator<Item = f32> + '_ {
+        self.cells.iter().skip(s).step_by(self.sectors).copied()
+    }
+}
+
+/// A descriptor laid out for many comparisons: each column contiguous and scaled to unit length
+/// (eq. 4's cosine is then a dot product), with its keys. Comparing two takes a few microseconds,
+/// where the cells as they are (ring-major: a column is strided) took several times that.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Comparable {
+    /// Annuli, wedges and radius of the descriptor.
+    pub rings: usize,
+    /// Wedges.
+    pub sectors: usize,
+    /// Radius, metres.
+    pub max_range: f64,
+    /// Eq. (7).
+    pub ring_key: [f32; RINGS],
+    sector_key: Vec<f32>,
+    /// Unit columns, sector-major; an empty column stays zero.
+    unit: Vec<f32>,
+    /// Whether each column saw anything.
+    seen: Vec<bool>,
+}
+
+impl Comparable {
+    /// The layout of `context`.
+    pub fn new(context: &ScanContext) -> Self {
+        let (rings, sectors) = (context.rings, context.sectors);
+        let mut unit = Vec::with_capacity(rings * sectors);
+        let mut seen = Vec::with_capacity(sectors);
+        for s in 0..sectors {
+            let norm = context.column(s).map(|x| f64::from(x) * f64::from(x)).sum::<f64>().sqrt();
+            seen.push(norm > 0.0);
+            unit.extend(context.column(s).map(|x| if norm > 0.0 { (f64::from(x) / norm) as f32 } else { 0.0 }));
+        }
+        let ring_key = if rings == RINGS { context.ring_key() } else { [0.0; RINGS] };
+        Self { rings, sectors, max_range: context.max_range, ring_key, sector_key: context.sector_key(), unit, seen }
+    }
+
+    /// Eq. (5): the distance to `other` at the best column shift near the sector-key alignment.
+    pub fn distance(&self, other: &Comparable, window: usize) -> Match {
         let no_match = Match { distance: 1.0, shift: 0, yaw: 0.0 };
         if self.rings != other.rings || self.sectors != other.sectors {
             return no_match;
         }
         let n = self.sectors;
-        let start = key_alignment(&self.sector_key(), &other.sector_key());
+        let start = key_alignment(&self.sector_key, &other.sector_key);
         let window = window.min(n / 2) as isize;
         (-window..=window)
             .map(|d| (start as isize + d).rem_euclid(n as isize) as usize)
@@ -116,39 +176,25 @@ impl ScanContext {
     }
 
     /// Eq. (4) at one shift: one minus the mean cosine similarity of the columns both scans see.
-    fn column_distance(&self, other: &ScanContext, shift: usize) -> f64 {
+    fn column_distance(&self, other: &Comparable, shift: usize) -> f64 {
         let (mut sum, mut seen) = (0.0, 0usize);
+        let r = self.rings;
         for j in 0..self.sectors {
-            // One pass over the column pair: its dot product and both squared norms.
-            let (dot, aa, bb) = self.column(j).zip(other.column((j + shift) % self.sectors)).fold(
-                (0.0, 0.0, 0.0),
-                |(dot, aa, bb), (x, y)| {
-                    let (x, y) = (f64::from(x), f64::from(y));
-                    (dot + x * y, aa + x * x, bb + y * y)
-                },
-            );
-            if aa == 0.0 || bb == 0.0 {
+            let k = (j + shift) % self.sectors;
+            if !(self.seen[j] && other.seen[k]) {
                 continue;
             }
-            sum += dot / (aa.sqrt() * bb.sqrt());
+            let (a, b) = (&self.unit[j * r..(j + 1) * r], &other.unit[k * r..(k + 1) * r]);
+            sum += a.iter().zip(b).map(|(x, y)| f64::from(*x) * f64::from(*y)).sum::<f64>();
             seen += 1;
         }
         if seen == 0 { 1.0 } else { 1.0 - sum / seen as f64 }
     }
+}
 
-    /// The cells of sector `s`, ring by ring.
-    fn column(&self, s: usize) -> impl Iterator<Item = f32> + '_ {
-        self.cells.iter().skip(s).step_by(self.sectors).copied()
-    }
-
-    /// The descriptor on the wire.
-    pub fn to_message(&self) -> proto::ScanContext {
-        proto::ScanContext {
-            rings: self.rings as u32,
-            sectors: self.sectors as u32,
-            max_range: self.max_range as f32,
-            cells: self.cells.clone(),
-        }
+impl HeapSize for Comparable {
+    fn heap_bytes(&self) -> usize {
+        vec_bytes(&self.sector_key) + vec_bytes(&self.unit) + vec_bytes(&self.seen)
     }
 }
 
@@ -178,6 +224,43 @@ fn shift_yaw(shift: usize, sectors: usize) -> f64 {
     if wrapped > std::f64::consts::PI { wrapped - TAU } else { wrapped }
 }
 
+/// Ring keys by keyframe index, for the nearest-neighbour query of Scan Context's first stage (a
+/// kiddo k-d tree that grows as keyframes are added).
+#[derive(Default)]
+pub struct RingKeyIndex {
+    tree: MutableKdTree<f32, RINGS>,
+    len: usize,
+}
+
+impl RingKeyIndex {
+    /// Adds keyframe `index`'s ring key.
+    pub fn add(&mut self, key: &[f32; RINGS], index: usize) {
+        // Only fails when the index overflows u32: four billion keyframes.
+        if let Ok(item) = u32::try_from(index)
+            && self.tree.add(key, item).is_ok()
+        {
+            self.len += 1;
+        }
+    }
+
+    /// Keyframes in the index.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether no keyframe is indexed yet.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The `n` keyframes whose ring keys are nearest to `key`, nearest first.
+    pub fn nearest(&self, key: &[f32; RINGS], n: usize) -> Vec<usize> {
+        let Some(n) = NonZero::new(n.min(self.len)) else { return Vec::new() };
+        let found = self.tree.query(key).nearest_n::<SquaredEuclidean<f32>>(n).execute();
+        found.into_iter().map(|r| r.item as usize).collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -185,17 +268,7 @@ mod tests {
 
     /// A scene of boxes and walls at irregular places, seen from the origin.
     fn scene() -> PointCloud {
-        let mut points = Vec::new();
-        let mut rng = testkit::Rng::new(7);
-        for _ in 0..40 {
-            let (cx, cy) = (rng.uniform(-35.0, 35.0), rng.uniform(-35.0, 35.0));
-            let h = rng.uniform(0.5, 6.0);
-            for _ in 0..200 {
-                let (dx, dy, z) = (rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(-1.8, h - 2.0));
-                points.push(Point3::new((cx + dx) as f32, (cy + dy) as f32, z as f32));
-            }
-        }
-        PointCloud::from_points(points)
+        PointCloud::from_points(testkit::boxes_around(7))
     }
 
     #[test]
@@ -240,5 +313,17 @@ mod tests {
         assert_eq!(ScanContext::new(&scene(), &config).distance(&other, 3).distance, 1.0);
         let nan = PointCloud::from_points(vec![Point3::new(f32::NAN, 0.0, 0.0), Point3::new(1.0, 1.0, f32::INFINITY)]);
         assert!(ScanContext::new(&nan, &config).cells.iter().all(|c| *c == 0.0));
+    }
+
+    #[test]
+    fn finds_the_nearest_keys_first_and_nothing_when_empty() {
+        let mut index = RingKeyIndex::default();
+        assert!(index.nearest(&[0.0; RINGS], 3).is_empty());
+        for i in 0..100 {
+            index.add(&[i as f32; RINGS], i);
+        }
+        assert_eq!(index.len(), 100);
+        assert_eq!(index.nearest(&[41.2; RINGS], 3), vec![41, 42, 40]);
+        assert_eq!(index.nearest(&[0.0; RINGS], 500).len(), 100);
     }
 }
