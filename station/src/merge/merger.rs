@@ -511,9 +511,16 @@ impl Merger {
         }
         let compared = self.compared.entry(key).or_default();
         if !compared.found {
-            // Places that shrank (a map replaced by a smaller one) are compared from the start.
-            let shrank = compared.since.a > pa.len() || compared.since.b > pb.len();
-            let since = if shrank { Since::default() } else { compared.since };
+            // The first time (or when a map was replaced by a smaller one), the smaller map's
+            // keyframes against the larger's: the descriptor distance is symmetric, and comparing
+            // both ways doubled the cost of a settling merge's first comparisons.
+            let fresh =
+                compared.since == Since::default() || compared.since.a > pa.len() || compared.since.b > pb.len();
+            let since = match (fresh, pa.len() <= pb.len()) {
+                (false, _) => compared.since,
+                (true, true) => Since { a: 0, b: pb.len() },
+                (true, false) => Since { a: pa.len(), b: 0 },
+            };
             compared.found = pa.best_match(pb, since, &self.config.places).is_some();
             compared.since = Places::since(pa, pb);
         }
