@@ -12,7 +12,6 @@
 //! may overlap.
 
 use std::f64::consts::TAU;
-
 use std::num::NonZero;
 
 use kiddo::{MutableKdTree, SquaredEuclidean};
@@ -155,8 +154,8 @@ impl Comparable {
             seen.push(norm > 0.0);
             unit.extend(context.column(s).map(|x| if norm > 0.0 { (f64::from(x) / norm) as f32 } else { 0.0 }));
         }
-        let ring_key = if rings == RINGS { context.ring_key() } else { [0.0; RINGS] };
-        Self { rings, sectors, max_range: context.max_range, ring_key, sector_key: context.sector_key(), unit, seen }
+        let (ring_key, sector_key) = (context.ring_key(), context.sector_key());
+        Self { rings, sectors, max_range: context.max_range, ring_key, sector_key, unit, seen }
     }
 
     /// Eq. (5): the distance to `other` at the best column shift near the sector-key alignment.

@@ -31,7 +31,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::odometry::Keyframe;
 use crate::pose_graph::{Edge, EdgeKind, PoseGraph, PoseGraphError, Report};
-use cloud::scan_context::{RingKeyIndex, ScanContext, ScanContextConfig};
+use cloud::scan_context::{Comparable, RingKeyIndex, ScanContext, ScanContextConfig};
 use consistency::{ConsistencyConfig, LoopView};
 use graph::{GraphConfig, KeyframeGraph};
 use verify::{Fit, Verdict, VerifyConfig};
@@ -124,8 +124,8 @@ pub struct Place {
     pub odometry: Isometry3<f64>,
     /// Odometry path length from the first keyframe (m).
     pub path_m: f64,
-    /// Its descriptor.
-    pub context: ScanContext,
+    /// Its descriptor, laid out for the comparisons with every later keyframe.
+    pub context: Comparable,
     /// Its cloud, thinned for verification.
     cloud: PointCloud,
 }
@@ -244,8 +244,7 @@ impl LoopCloser {
     /// a loop and re-optimises the graph if the loops in it changed.
     pub fn add(&mut self, keyframe: &Keyframe) -> Result<Step, LoopError> {
         let watch = Stopwatch::start();
-        let place = self.describe(keyframe);
-        let context = place.context.clone();
+        let (place, context) = self.describe(keyframe);
         self.graph.extend(self.places.last().map(|p| &p.odometry), &place.odometry);
         self.places.push(place);
         self.index_aged_places();
@@ -267,17 +266,19 @@ impl LoopCloser {
         Ok(Step { context, optimised, detect_ms })
     }
 
-    /// Step 1: the place of a keyframe.
-    fn describe(&self, keyframe: &Keyframe) -> Place {
+    /// Step 1: the place of a keyframe, and its descriptor as it goes on the wire.
+    fn describe(&self, keyframe: &Keyframe) -> (Place, ScanContext) {
         let path_m = self.places.last().map_or(0.0, |p| p.path_m + graph::step_length(&p.odometry, &keyframe.pose));
-        Place {
+        let context = ScanContext::new(&keyframe.cloud, &self.config.scan_context);
+        let place = Place {
             seq: keyframe.seq,
             scan: keyframe.frame,
             odometry: keyframe.pose,
             path_m,
-            context: ScanContext::new(&keyframe.cloud, &self.config.scan_context),
+            context: Comparable::new(&context),
             cloud: verify::thin(&keyframe.cloud, &self.config.verify),
-        }
+        };
+        (place, context)
     }
 
     /// Puts the places that are now far enough behind into the ring-key index.
@@ -285,8 +286,7 @@ impl LoopCloser {
         let Some(now) = self.places.last().map(|p| p.path_m) else { return };
         while self.indexed < self.places.len() && self.places[self.indexed].path_m <= now - self.config.exclude_recent_m
         {
-            let key = self.places[self.indexed].context.ring_key();
-            self.index.add(&key, self.indexed);
+            self.index.add(&self.places[self.indexed].context.ring_key, self.indexed);
             self.indexed += 1;
         }
     }
@@ -296,7 +296,7 @@ impl LoopCloser {
     fn best_candidate(&self, b: usize) -> Option<(usize, f64, f64)> {
         let query = &self.places[b].context;
         self.index
-            .nearest(&query.ring_key(), self.config.candidates)
+            .nearest(&query.ring_key, self.config.candidates)
             .into_iter()
             .map(|a| (a, self.places[a].context.distance(query, self.config.scan_context.shift_window)))
             .min_by(|x, y| x.1.distance.total_cmp(&y.1.distance))

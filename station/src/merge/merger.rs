@@ -377,8 +377,9 @@ impl Merger {
 
     /// Verdicts of all pairs of usable maps: cached ones reused, links tracked, and at most
     /// [`MergeConfig::max_searches`] global registrations, all in parallel; with the number of
-    /// pairs left waiting for a search and the time spent comparing places. While settling, a pair with a map still waiting to be
-    /// prepared (`deferred`, ids) waits too: searching it now would only be done again.
+    /// pairs left waiting for a search and the time spent comparing places. While settling, a pair
+    /// with a map still waiting to be prepared (`deferred`, ids) waits too: searching it now would
+    /// only be done again.
     fn estimate_pairs(
         &mut self,
         ids: &[usize],
@@ -486,10 +487,10 @@ impl Merger {
     /// the first time costs tens of milliseconds, and doing it for the pairs of every re-prepared
     /// map added 0.3-0.6 s to a streaming 16-robot merge, whose searches the budget bounds anyway;
     /// a settling merge searches every changed pair, and there the gate saves the most (the
-    /// 16-robot load caught up in 48 s instead of 68). A pair with an unplaced map is searched even without a candidate: two
-    /// maps can overlap where no two keyframes stand at one place (one robot saw from afar what
-    /// the other drove through; the 16-robot campus load had a robot linked only that way). A pair
-    /// once linked is never held back: its link is the evidence.
+    /// 16-robot load caught up in 48 s instead of 68). A pair with an unplaced map is searched even
+    /// without a candidate: two maps can overlap where no two keyframes stand at one place (one
+    /// robot saw from afar what the other drove through; the 16-robot campus load had a robot
+    /// linked only that way). A pair once linked is never held back: its link is the evidence.
     fn with_candidates(&mut self, ids: &[usize], pairs: Vec<(usize, usize)>) -> (Positions, Positions) {
         let (mut searched, mut unmatched) = (Vec::new(), Vec::new());
         for (a, b) in pairs {

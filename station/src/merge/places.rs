@@ -6,8 +6,7 @@
 //! Global registration of two whole maps is the costliest step of a merge, and many pairs of a
 //! large fleet share nothing. Every robot sends each keyframe's descriptor with it; comparing two
 //! maps of a few hundred keyframes each costs tens of milliseconds the first time (ring keys in a
-//! k-d tree, then the full descriptor of the nearest ten, both ways) and only their new keyframes
-//! after that, against hundreds of milliseconds for a search.
+//! k-d tree, then the full descriptor of the nearest ten) and only their new keyframes after that, against hundreds of milliseconds for a search.
 
 use std::sync::Arc;
 
@@ -38,7 +37,12 @@ impl Default for PlaceConfig {
 pub struct Places {
     contexts: Vec<Arc<Comparable>>,
     index: RingKeyIndex,
+    /// Grid and range shared by every descriptor; `None` when they differ or there are none.
+    shape: Option<Shape>,
 }
+
+/// What two descriptors must share to be compared: rings, sectors and range (its bits).
+type Shape = (usize, usize, u64);
 
 /// A keyframe of one map that looks like a keyframe of another: where the two maps may overlap.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -58,7 +62,9 @@ impl Places {
         for (k, c) in contexts.iter().enumerate() {
             index.add(&c.ring_key, k);
         }
-        Self { contexts, index }
+        let shape_of = |c: &Arc<Comparable>| (c.rings, c.sectors, c.max_range.to_bits());
+        let shape = contexts.first().map(shape_of).filter(|s| contexts.iter().all(|c| shape_of(c) == *s));
+        Self { contexts, index, shape }
     }
 
     /// Bytes of the ring-key index (the descriptors are the caller's, shared).
@@ -81,14 +87,7 @@ impl Places {
     /// Whether descriptors of the two maps mean the same (same grid and range): robots configured
     /// differently cannot be compared, and their pairs are searched without candidates.
     pub fn comparable(&self, other: &Places) -> bool {
-        let shape = |c: &Comparable| (c.rings, c.sectors, c.max_range.to_bits());
-        match (self.contexts.first(), other.contexts.first()) {
-            (Some(a), Some(b)) => {
-                let s = shape(a);
-                shape(b) == s && self.contexts.iter().chain(&other.contexts).all(|c| shape(c) == s)
-            }
-            _ => false,
-        }
+        self.shape.is_some() && self.shape == other.shape
     }
 
     /// The closest candidate between the two maps among the keyframes added since `since`: each

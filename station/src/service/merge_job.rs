@@ -117,7 +117,6 @@ pub struct MergeWorker {
 /// One robot's place descriptors, in the order its keyframes were first decoded.
 #[derive(Default)]
 struct RobotPlaces {
-    seen: FxHashSet<u64>,
     /// `None` for a keyframe that came without a usable descriptor.
     contexts: Vec<Option<Arc<Comparable>>>,
     /// The places given to the merger last, and of how many keyframes.
@@ -141,10 +140,7 @@ impl RobotPlaces {
 
     fn heap_bytes(&self) -> usize {
         let contexts: usize = self.contexts.iter().flatten().map(|c| c.heap_bytes()).sum();
-        contexts
-            + vec_bytes(&self.contexts)
-            + map_bytes::<u64, ()>(self.seen.capacity())
-            + self.given.as_ref().map_or(0, |(_, p)| p.index_bytes())
+        contexts + vec_bytes(&self.contexts) + self.given.as_ref().map_or(0, |(_, p)| p.index_bytes())
     }
 }
 
@@ -216,11 +212,9 @@ impl MergeWorker {
         // A piece at a time: a rebuild at new poses decodes every keyframe of the robot.
         for piece in missing.chunks(DECODED_AT_ONCE) {
             for kf in decode(r.robot, piece, images, &self.merger.config().visibility) {
-                if let Some(image) = kf.image {
-                    images.insert(kf.seq, image);
-                }
-                if places.seen.insert(kf.seq) {
-                    places.contexts.push(kf.context);
+                if let Some(first) = kf.first {
+                    images.insert(kf.seq, first.image);
+                    places.contexts.push(first.context);
                 }
                 if local.included.insert(kf.seq) {
                     let pose = kf.pose.cast::<f32>();
@@ -241,7 +235,8 @@ impl MergeWorker {
     }
 
     /// Per robot, the bytes kept for it between jobs: its local map, its keyframes' range images
-    /// and place descriptors, and the merger's copy of its map with the map's preparation (features, Gaussians).
+    /// and place descriptors, and the merger's copy of its map with the map's preparation
+    /// (features, Gaussians).
     pub fn memory(&self) -> BTreeMap<u32, u64> {
         self.maps
             .iter()
@@ -270,12 +265,17 @@ impl MergeWorker {
     }
 }
 
-/// A keyframe decoded for the job, with its range image when it had none.
+/// A keyframe decoded for the job, with what is made of it once when it is decoded the first time.
 struct Decoded {
     seq: u64,
     pose: Isometry3<f64>,
     cloud: PointCloud,
-    image: Option<Arc<RangeImage>>,
+    first: Option<FirstDecode>,
+}
+
+/// What is kept of a keyframe from its first decode (sensor frame: new poses do not change it).
+struct FirstDecode {
+    image: Arc<RangeImage>,
     /// Its place descriptor, laid out for comparing; `None` without a usable one.
     context: Option<Arc<Comparable>>,
 }
@@ -284,8 +284,9 @@ struct Decoded {
 /// 144 kB each) stay a few megabytes while a robot's whole map is rebuilt.
 const DECODED_AT_ONCE: usize = 64;
 
-/// Decodes `keyframes` of `robot` in parallel and makes the range images it has not got (once per
-/// keyframe: in the sensor frame, new poses only move them). A keyframe that no longer decodes (it
+/// Decodes `keyframes` of `robot` in parallel and, for those without a range image yet, makes it
+/// and lays out their place descriptors (once per keyframe: in the sensor frame, new poses only
+/// move them). A keyframe that no longer decodes (it
 /// passed the checks when it arrived) is logged and left out.
 fn decode(
     robot: u32,
@@ -297,17 +298,21 @@ fn decode(
         .par_iter()
         .filter_map(|kf| match ingest::held_keyframe(&kf.bytes) {
             Ok(held) => {
-                let cloud = held.cloud;
-                let image = (!images.contains_key(&kf.seq)).then(|| Arc::new(RangeImage::new(&cloud.points, config)));
-                let context = match held.context {
-                    Some(Ok(c)) => Some(Arc::new(Comparable::new(&c))),
-                    Some(Err(e)) => {
-                        tracing::warn!("robot {robot} keyframe {}: unusable scan context ({e}); the robot's map is searched against every other", kf.seq);
-                        None
-                    }
-                    None => None,
-                };
-                Some(Decoded { seq: kf.seq, pose: kf.pose, cloud, image, context })
+                let first = (!images.contains_key(&kf.seq)).then(|| FirstDecode {
+                    image: Arc::new(RangeImage::new(&held.cloud.points, config)),
+                    context: match held.context {
+                        Some(Ok(c)) => Some(Arc::new(Comparable::new(&c))),
+                        Some(Err(e)) => {
+                            tracing::warn!(
+                                "robot {robot} keyframe {}: unusable scan context ({e}); the robot's map is searched against every other",
+                                kf.seq
+                            );
+                            None
+                        }
+                        None => None,
+                    },
+                });
+                Some(Decoded { seq: kf.seq, pose: kf.pose, cloud: held.cloud, first })
             }
             Err(e) => {
                 tracing::error!("robot {robot} keyframe {} no longer decodes, left out of its map: {e}", kf.seq);
