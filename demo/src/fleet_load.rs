@@ -118,8 +118,12 @@ pub struct LoadReport {
     pub queue_max: u32,
     /// Merges run while publishing and until caught up.
     pub merges: usize,
-    /// Merge wall time, milliseconds (`None` without merges).
+    /// Merge wall time (composing and publishing a global map), milliseconds (`None` without merges).
     pub merge_ms: Option<Percentiles>,
+    /// Rounds of estimation (preparing maps, tracking and searching pairs) run beside the merges.
+    pub rounds: usize,
+    /// Their wall time, milliseconds (`None` without rounds).
+    pub round_ms: Option<Percentiles>,
     /// Per keyframe, from its arrival at the station to the first published global map holding it,
     /// milliseconds (`None` when no keyframe was in a map).
     pub latency_ms: Option<Percentiles>,
@@ -301,6 +305,8 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
         queue_max: observed.queue_max,
         merges: summary.merge_ms.len(),
         merge_ms: Percentiles::of(&summary.merge_ms),
+        rounds: summary.round_ms.len(),
+        round_ms: Percentiles::of(&summary.round_ms),
         latency_ms: Percentiles::of(&observed.latencies.ms),
         unmapped: observed.latencies.unmapped(),
         catch_up_s,
@@ -584,6 +590,7 @@ impl fmt::Display for LoadReport {
             self.queue_max,
             self.merged_robots
         )?;
+        writeln!(f, "{} rounds of estimation beside them, {}", self.rounds, spread(self.round_ms))?;
         writeln!(
             f,
             "latency from arrival to the first published map holding it: {}; {} keyframes in no map; \

@@ -23,6 +23,15 @@ struct Fleet {
     frames: Vec<Isometry3<f64>>,
 }
 
+impl Fleet {
+    /// Sets every robot's map to its map at `step`, as revision `revision`.
+    fn grow_all(&self, merger: &mut Merger, revision: u64, step: usize) {
+        for (id, maps) in self.maps.iter().enumerate() {
+            merger.grow(id, revision, maps[step].clone());
+        }
+    }
+}
+
 fn fleet(name: &str, steps: usize, voxel: f32) -> Fleet {
     let scenario = Scenario::by_name(name).unwrap();
     let sims: Vec<Simulator> = (0..scenario.robots().len())
@@ -41,9 +50,7 @@ fn merge_as_they_grow(fleet: &Fleet, config: MergeConfig) -> (MergeReport, Merge
     let mut merger = Merger::new(config).unwrap();
     let mut last = None;
     for step in 0..steps {
-        for (id, maps) in fleet.maps.iter().enumerate() {
-            merger.grow(id, step as u64, maps[step].clone());
-        }
+        fleet.grow_all(&mut merger, step as u64, step);
         last = Some(merge_until_done(&mut merger, &fleet.frames, step, false));
     }
     (last.unwrap(), merger.stats())
@@ -66,9 +73,7 @@ fn a_settled_merge_searches_again_what_was_tracked_or_grew() {
     let config = MergeConfig::outdoor();
     let mut merger = Merger::new(config.clone()).unwrap();
     for step in 0..3 {
-        for (id, maps) in fleet.maps.iter().enumerate() {
-            merger.grow(id, step as u64, maps[step].clone());
-        }
+        fleet.grow_all(&mut merger, step as u64, step);
         while merger.merge().unwrap().pending > 0 {}
     }
     // Each map grows by 5 % more (points 1 cm beside its own): too little for a streaming merge to
@@ -111,9 +116,7 @@ fn searches_are_bounded_per_merge_and_the_rest_wait() {
     let fleet = fleet("campus", 1, 0.2);
     let config = MergeConfig { max_searches: 2, ..MergeConfig::outdoor() };
     let mut merger = Merger::new(config).unwrap();
-    for (id, maps) in fleet.maps.iter().enumerate() {
-        merger.grow(id, 0, maps[0].clone());
-    }
+    fleet.grow_all(&mut merger, 0, 0);
     let first = merger.merge().unwrap();
     assert_eq!(merger.stats().pair_estimates, 2);
     assert_eq!(first.pending, 4, "six pairs, two searched");
@@ -132,9 +135,7 @@ fn searches_are_bounded_per_merge_and_the_rest_wait() {
 fn a_map_that_barely_grew_is_not_prepared_again_but_its_points_are_in_the_global_map() {
     let fleet = fleet("campus", 1, 0.2);
     let mut merger = Merger::new(MergeConfig::outdoor()).unwrap();
-    for (id, maps) in fleet.maps.iter().enumerate() {
-        merger.grow(id, 0, maps[0].clone());
-    }
+    fleet.grow_all(&mut merger, 0, 0);
     let before = merger.merge().unwrap();
     let prepared = merger.stats().preparations;
     // Robot 0 gains a few points far from everything (under the refresh share).
@@ -175,9 +176,7 @@ fn a_merged_map_is_prepared_again_at_doubling_an_unmerged_one_sooner() {
     let fleet = fleet("campus", 1, 0.2);
     let config = MergeConfig::outdoor();
     let mut merger = Merger::new(config.clone()).unwrap();
-    for (id, maps) in fleet.maps.iter().enumerate() {
-        merger.grow(id, 0, maps[0].clone());
-    }
+    fleet.grow_all(&mut merger, 0, 0);
     merger.grow(9, 0, floor_patch(4));
     while merger.merge().unwrap().pending > 0 {}
     let placed = merger.merge().unwrap();
@@ -198,4 +197,70 @@ fn a_merged_map_is_prepared_again_at_doubling_an_unmerged_one_sooner() {
     assert_eq!(merger.stats().preparations - before, 2);
     assert_eq!(doubled.merged(), 4);
     assert!(worst_error(&doubled, &fleet.frames).0 < 0.05);
+}
+
+#[test]
+fn maps_are_composed_while_a_round_of_estimation_runs_elsewhere() {
+    let fleet = fleet("campus", 2, 0.2);
+    let mut merger = Merger::new(MergeConfig::outdoor()).unwrap();
+    fleet.grow_all(&mut merger, 0, 0);
+    merger.grow(9, 0, floor_patch(4));
+    let before = merge_until_done(&mut merger, &fleet.frames, 0, false);
+    assert!(before.merged() >= 2, "half-way, some campus robots are linked");
+    // The robots drive on: every map doubles or so, and a round is planned on them.
+    fleet.grow_all(&mut merger, 1, 1);
+    let round = merger.plan().expect("grown maps need a round");
+    assert!(merger.estimating() && merger.plan().is_none(), "one round at a time");
+    // Meanwhile another map arrives (robot 1's, under another id) and the floor patch leaves.
+    let mut frames = fleet.frames.clone();
+    frames.push(fleet.frames[1]);
+    merger.grow(4, 0, fleet.maps[1][1].clone());
+    merger.remove(9);
+    let during = merger.compose().unwrap();
+    assert!(!during.settled);
+    let status = |report: &MergeReport, id: usize| report.maps.iter().find(|m| m.id == id).unwrap().status.clone();
+    assert_eq!(status(&during, 4), MapStatus::Unmerged(Unmerged::Waiting));
+    // The grown maps are published at the placements already found, new points included.
+    assert!(
+        during.global_map.len() > before.global_map.len(),
+        "{} -> {}",
+        before.global_map.len(),
+        during.global_map.len()
+    );
+    assert_eq!(during.merged(), before.merged(), "placements stand until a round is applied");
+    let (t, r) = worst_error(&during, &frames);
+    assert!(t < 0.05 && r < 0.5, "{t:.3} m / {r:.2} deg");
+    // The round runs on another thread, without the merger, and is taken back.
+    let round = std::thread::spawn(move || {
+        let mut round = round;
+        round.run();
+        round
+    })
+    .join()
+    .unwrap();
+    assert!(round.timing().total > std::time::Duration::ZERO);
+    merger.apply(round);
+    assert!(!merger.estimating());
+    // Rounds until none is needed: the new map is prepared and placed, the removed one stays gone.
+    let mut rounds = 0;
+    while let Some(mut round) = merger.plan() {
+        round.run();
+        merger.apply(round);
+        rounds += 1;
+        assert!(rounds < 20, "rounds do not converge");
+    }
+    merger.settle();
+    while let Some(mut round) = merger.plan() {
+        round.run();
+        merger.apply(round);
+    }
+    let after = merger.compose().unwrap();
+    assert!(after.settled, "nothing changed since the settling round");
+    assert_eq!(after.maps.iter().map(|m| m.id).collect::<Vec<_>>(), vec![0, 1, 2, 3, 4]);
+    assert_eq!(after.merged(), 5);
+    let (t, r) = worst_error(&after, &frames);
+    assert!(t < 0.05 && r < 0.5, "{t:.3} m / {r:.2} deg");
+    // A change after it unsettles the map.
+    merger.grow(0, 2, thickened(&fleet.maps[0][1], 0.05));
+    assert!(!merger.compose().unwrap().settled);
 }

@@ -6,10 +6,16 @@
 //! of the station's time on pairs that did not change. A map that only grows ([`Merger::grow`]) is
 //! prepared again once it has grown by [`MergeConfig::refresh_growth`]; until then its newest
 //! points enter the global map at the placement found on the last preparation. When a preparation
-//! changes, a linked pair is tracked from its last transform ([`track_pair`], VGICP: tens of
+//! changes, a linked pair is tracked from its last transform ([`super::track_pair`], VGICP: tens of
 //! milliseconds) and searched again by global registration only when tracking fails its checks or
 //! a map has grown by [`MergeConfig::reverify_growth`] since the link was found; pairs never linked
 //! are searched at most [`MergeConfig::max_searches`] per merge, the longest-waiting first.
+//!
+//! That estimation is a [`Round`]: planned from the merger's state ([`Merger::plan`]), run on its
+//! own ([`Round::run`], no access to the merger) and taken back ([`Merger::apply`]). The global
+//! map is composed from the placements found so far ([`Merger::compose`]), so a service can
+//! publish fresh maps every second while a round takes several; [`Merger::merge`] runs the steps
+//! one after the other.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -18,15 +24,16 @@ use cloud::PointCloud;
 use cloud::memory::HeapSize;
 use cloud::stopwatch::{Stopwatch, timed};
 use cloud::visibility::Views;
-use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};
 
 use super::assembly::{Assembly, Placed};
 use super::graph::{self, Chained, GraphEdge};
-use super::places::{Places, Since};
+use super::places::Places;
+use super::round::{CachedPair, Compared, Preparation, RoundMap};
+pub use super::round::{MergerStats, Round, RoundTiming};
 use super::{
     MapReport, MapStatus, MergeConfig, MergeError, MergeReport, MergeTiming, PairRejection, PairReport, PairVerdict,
-    PreparedMap, Unmerged, estimate_pair, track_pair,
+    PreparedMap, Unmerged,
 };
 
 /// One map slot: its newest cloud and the preparation pairs are estimated on.
@@ -47,72 +54,19 @@ struct Slot {
     places: Option<Arc<Places>>,
 }
 
-/// A map's preparation and what it was made from.
-struct Preparation {
-    map: Arc<PreparedMap>,
-    /// Bumped at every preparation of the map; pair verdicts are cached against it.
-    generation: u64,
-}
-
-impl Slot {
-    /// Whether the next merge must prepare the map (new or reshaped), may (grown past
-    /// `refresh_growth`, the growth it shows), or need not.
-    fn staleness(&self, refresh_growth: f64) -> Staleness {
-        match &self.prepared {
-            None => Staleness::Required,
-            Some(_) if self.reshaped => Staleness::Required,
-            Some(p) => {
-                let growth = self.cloud.len() as f64 / p.map.points.max(1) as f64 - 1.0;
-                if growth >= refresh_growth { Staleness::Grown(growth) } else { Staleness::Fresh }
-            }
-        }
-    }
-}
-
-enum Staleness {
-    Required,
-    Grown(f64),
-    Fresh,
-}
-
-/// A pair verdict and what it was computed from.
-struct CachedPair {
-    /// Generations of the two maps' preparations.
-    generations: (u64, u64),
-    verdict: PairVerdict,
-    /// Points of the two prepared maps when the last global registration ran.
-    searched_at: (usize, usize),
-    /// Merge counter of the last global registration: the longest-waiting pair is searched first.
-    searched_in: u64,
-}
-
-/// How much work the merger has done since it was created.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct MergerStats {
-    /// Maps prepared (features and Gaussians).
-    pub preparations: usize,
-    /// Global registrations of pairs (searches).
-    pub pair_estimates: usize,
-    /// Linked pairs followed by VGICP from their last transform and kept.
-    pub tracked: usize,
-    /// Merges run.
-    pub merges: usize,
-    /// Searches not run because no place of either map looked like one of the other's.
-    pub unmatched: usize,
-}
-
-/// Pairs of maps by their positions.
-type Positions = Vec<(usize, usize)>;
-
-/// What one pair needs this merge.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum PairWork {
-    /// Its cached verdict stands.
-    Cached,
-    /// Linked before: follow the link.
-    Track,
-    /// A global registration (or, over budget, wait).
-    Search,
+/// What the last round applied left for the merges after it.
+#[derive(Clone, Debug, Default)]
+struct LastRound {
+    /// Grown maps and pairs it left for a later round.
+    pending: usize,
+    /// It settled and left nothing pending.
+    settled: bool,
+    /// The merger's change counter when it was planned.
+    changes: u64,
+    /// Pairs (ids) it computed, until a merge has reported them.
+    fresh: FxHashSet<(usize, usize)>,
+    /// Its timing, until a merge has reported it.
+    timing: Option<RoundTiming>,
 }
 
 /// Merges maps that change over time, recomputing only what a change affects.
@@ -122,7 +76,7 @@ pub struct Merger {
     pairs: FxHashMap<(usize, usize), CachedPair>,
     stats: MergerStats,
     next_generation: u64,
-    /// The next merge settles (see [`Merger::settle`]).
+    /// The next round settles (see [`Merger::settle`]).
     settling: bool,
     /// Ids of the maps the last merge placed in the global map.
     merged: FxHashSet<usize>,
@@ -130,13 +84,11 @@ pub struct Merger {
     assembly: Assembly,
     /// Per pair of map ids, how much of their places was compared, and whether a candidate was found.
     compared: FxHashMap<(usize, usize), Compared>,
-}
-
-/// How far two maps' places were compared.
-#[derive(Clone, Copy, Debug, Default)]
-struct Compared {
-    since: Since,
-    found: bool,
+    /// Bumped at every change of a map (set, removed): a round settles only the maps it saw.
+    changes: u64,
+    /// A round is out ([`Merger::plan`]) and not yet applied.
+    out: bool,
+    last: LastRound,
 }
 
 impl Merger {
@@ -152,6 +104,9 @@ impl Merger {
             merged: FxHashSet::default(),
             assembly: Assembly::new(config.output_voxel),
             compared: FxHashMap::default(),
+            changes: 0,
+            out: false,
+            last: LastRound::default(),
             config,
         })
     }
@@ -188,6 +143,7 @@ impl Merger {
         if self.maps.get(&id).is_some_and(|s| s.revision == revision) {
             return;
         }
+        self.changes += 1;
         let dropped_non_finite = cloud.retain_finite();
         let cloud = Arc::new(cloud);
         match self.maps.get_mut(&id) {
@@ -239,14 +195,19 @@ impl Merger {
         }
     }
 
-    /// Makes the next merge exact rather than quick, for when the robots have gone quiet: every map
-    /// that grew at all is prepared again and every pair whose maps changed, or whose edge was
+    /// Makes the next round exact rather than quick, for when the robots have gone quiet: every
+    /// map that grew at all is prepared again and every pair whose maps changed, or whose edge was
     /// tracked, is searched again with every check (still at most [`MergeConfig::max_refreshes`]
-    /// maps and [`MergeConfig::max_searches`] searches per merge; the report's `pending` says
+    /// maps and [`MergeConfig::max_searches`] searches per round; the report's `pending` says
     /// when more settling merges are needed). A fleet at rest thus gets the placements a
     /// from-scratch merge of its final maps would give.
     pub fn settle(&mut self) {
         self.settling = true;
+    }
+
+    /// Takes back a [`Merger::settle`] no round has taken yet: the robots stream again.
+    pub fn unsettle(&mut self) {
+        self.settling = false;
     }
 
     /// Bytes the merger holds for map `id`: its newest cloud, its preparation and its part of the
@@ -259,28 +220,137 @@ impl Merger {
 
     /// Forgets map `id` and its pairs.
     pub fn remove(&mut self, id: usize) {
+        self.changes += 1;
         self.maps.remove(&id);
         self.pairs.retain(|&(a, b), _| a != id && b != id);
         self.compared.retain(|&(a, b), _| a != id && b != id);
     }
 
-    /// Merges the current revisions of all maps.
+    /// Merges the current revisions of all maps: a round of estimation ([`Merger::plan`],
+    /// [`Round::run`], [`Merger::apply`]) and then the global map ([`Merger::compose`]). A
+    /// service that must publish while a round runs calls those steps itself.
     pub fn merge(&mut self) -> Result<MergeReport, MergeError> {
         let watch = Stopwatch::start();
+        if let Some(mut round) = self.plan() {
+            round.run();
+            self.apply(round);
+        }
+        let mut report = self.compose()?;
+        report.timing.total = watch.elapsed();
+        Ok(report)
+    }
+
+    /// The next round of estimation, with everything it works on; `None` while another round is
+    /// out, or when running one would change nothing (then a settle asked for is done at once).
+    /// At most one round is out at a time: [`Merger::apply`] or [`Merger::abandon`] it.
+    pub fn plan(&mut self) -> Option<Round> {
+        if self.out {
+            return None;
+        }
+        let maps = self
+            .maps
+            .iter()
+            .map(|(&id, slot)| {
+                let map = RoundMap {
+                    cloud: Arc::clone(&slot.cloud),
+                    views: slot.views.clone(),
+                    places: slot.places.clone(),
+                    prepared: slot.prepared.clone(),
+                    reshaped: slot.reshaped,
+                    shape: slot.shape,
+                };
+                (id, map)
+            })
+            .collect();
+        let round = Round {
+            config: self.config.clone(),
+            number: self.stats.rounds as u64 + 1,
+            settling: self.settling,
+            changes: self.changes,
+            merged: self.merged.clone(),
+            maps,
+            pairs: self.pairs.clone(),
+            compared: self.compared.clone(),
+            next_generation: self.next_generation,
+            prepared: Vec::new(),
+            done: FxHashSet::default(),
+            pending: 0,
+            stats: MergerStats::default(),
+            timing: RoundTiming::default(),
+            ran: false,
+        };
+        if round.idle() {
+            // Nothing is pending when nothing needs doing.
+            self.last.pending = 0;
+            if std::mem::take(&mut self.settling) {
+                self.last.settled = true;
+                self.last.changes = self.changes;
+            }
+            return None;
+        }
+        self.settling = false;
+        self.out = true;
+        Some(round)
+    }
+
+    /// Takes a round's results (running it first if it has not run): the preparations it made,
+    /// the verdicts it found, the places it compared. Maps removed since it was planned are
+    /// skipped; a map whose shape changed since keeps the preparation but is prepared again by the
+    /// next round.
+    pub fn apply(&mut self, mut round: Round) {
+        round.run();
+        self.out = false;
+        for id in &round.prepared {
+            let (Some(slot), Some(map)) = (self.maps.get_mut(id), round.maps.get_mut(id)) else { continue };
+            slot.prepared = map.prepared.take();
+            slot.reshaped = slot.shape != map.shape;
+        }
+        self.next_generation = self.next_generation.max(round.next_generation);
+        let held = |&(a, b): &(usize, usize)| self.maps.contains_key(&a) && self.maps.contains_key(&b);
+        for key in round.done.iter().filter(|k| held(k)) {
+            if let Some(pair) = round.pairs.remove(key) {
+                self.pairs.insert(*key, pair);
+            }
+        }
+        for (key, compared) in round.compared.into_iter().filter(|(k, _)| held(k)) {
+            self.compared.insert(key, compared);
+        }
+        self.stats += round.stats;
+        let fresh = round.done.into_iter().filter(|k| held(k)).collect();
+        let settled = round.settling && round.pending == 0 && round.changes == self.changes;
+        self.last =
+            LastRound { pending: round.pending, settled, changes: round.changes, fresh, timing: Some(round.timing) };
+    }
+
+    /// Forgets the round that is out (it failed): the next [`Merger::plan`] plans it again.
+    pub fn abandon(&mut self) {
+        self.out = false;
+    }
+
+    /// The global map of the current maps at the placements the rounds applied so far found (a
+    /// map not yet prepared waits, unmerged): paper eq. 11, a fraction of a second.
+    pub fn compose(&mut self) -> Result<MergeReport, MergeError> {
+        let watch = Stopwatch::start();
         self.stats.merges += 1;
-        let (deferred_maps, features) = timed(|| self.prepare_stale());
         let ids: Vec<usize> = self.maps.keys().copied().collect();
-        let prepared: Vec<Arc<PreparedMap>> =
-            self.maps.values().map(|s| Arc::clone(&s.prepared.as_ref().expect("all maps are prepared").map)).collect();
+        let prepared: Vec<Option<Arc<PreparedMap>>> =
+            self.maps.values().map(|s| s.prepared.as_ref().map(|p| Arc::clone(&p.map))).collect();
         let reference = self.reference_position(&ids, &prepared)?;
-        let ((pairs, deferred_pairs, places), pairs_time) =
-            timed(|| self.estimate_pairs(&ids, &prepared, &deferred_maps));
+        let pairs = self.pair_reports(&ids, &prepared);
         let (layout, graph) = timed(|| layout(&prepared, &pairs, reference));
         let maps = self.map_reports(&ids, &prepared, &pairs, &layout.chained);
         let ((global_map, origins), assemble) = timed(|| self.assemble(&maps));
-        let timing = MergeTiming { features, pairs: pairs_time, places, graph, assemble, total: watch.elapsed() };
-        let pending = deferred_maps.len() + deferred_pairs;
-        let settled = std::mem::take(&mut self.settling) && pending == 0;
+        let round = self.last.timing.take().unwrap_or_default();
+        let timing = MergeTiming {
+            features: round.features,
+            pairs: round.pairs,
+            places: round.places,
+            graph,
+            assemble,
+            total: watch.elapsed(),
+        };
+        let unchanged = self.last.changes == self.changes;
+        let settled = self.last.settled && unchanged && !self.out;
         self.merged = maps.iter().filter(|m| m.is_merged()).map(|m| m.id).collect();
         Ok(MergeReport {
             maps,
@@ -290,181 +360,50 @@ impl Merger {
             global_map,
             origins,
             timing,
-            pending,
+            pending: self.last.pending,
             settled,
         })
     }
 
-    /// Prepares, in parallel, every map that must be (new, reshaped) and up to
-    /// [`MergeConfig::max_refreshes`] of the grown ones, unmerged before merged and then the most
-    /// grown first, settling or not (a settling merge that prepared every map at once took 19 s at
-    /// 16 robots); returns the ids of the grown maps that wait for a later merge. Once every usable
-    /// map is placed, a placed one counts as grown only at [`MergeConfig::merged_refresh_growth`].
-    fn prepare_stale(&mut self) -> Vec<usize> {
-        let config = &self.config;
-        let mut required = Vec::new();
-        let mut grown = Vec::new();
-        // While a usable map waits to be placed, its searches need the others' newest parts.
-        let unusable = |slot: &Slot| slot.prepared.as_ref().is_some_and(|p| p.map.usable().is_none());
-        let all_placed = self.maps.iter().all(|(id, slot)| self.merged.contains(id) || unusable(slot));
-        for (&id, slot) in &self.maps {
-            let merged = self.merged.contains(&id);
-            // Settling: any growth at all counts.
-            let refresh_growth = match (self.settling, merged && all_placed) {
-                (true, _) => f64::MIN_POSITIVE,
-                (false, true) => config.merged_refresh_growth,
-                (false, false) => config.refresh_growth,
-            };
-            match slot.staleness(refresh_growth) {
-                Staleness::Required => required.push(id),
-                Staleness::Grown(g) => grown.push((id, merged, g)),
-                Staleness::Fresh => {}
-            }
-        }
-        grown.sort_by(|a, b| a.1.cmp(&b.1).then(b.2.total_cmp(&a.2)));
-        let (now, later) = grown.split_at(grown.len().min(config.max_refreshes));
-        required.extend(now.iter().map(|&(id, ..)| id));
-        let deferred: Vec<usize> = later.iter().map(|&(id, ..)| id).collect();
-        self.stats.preparations += required.len();
-        let fresh: Vec<(usize, PreparedMap)> = required
-            .par_iter()
-            .map(|id| {
-                let slot = &self.maps[id];
-                (*id, PreparedMap::new(PointCloud::clone(&slot.cloud), slot.views.clone(), config))
-            })
-            .collect();
-        for (id, map) in fresh {
-            let slot = self.maps.get_mut(&id).expect("prepared maps exist");
-            slot.prepared = Some(Preparation { map: Arc::new(map), generation: self.next_generation });
-            slot.reshaped = false;
-            self.next_generation += 1;
-        }
-        deferred
+    /// True while a round is out.
+    pub fn estimating(&self) -> bool {
+        self.out
     }
 
-    /// The position of the configured reference map, checked.
-    fn reference_position(&self, ids: &[usize], prepared: &[Arc<PreparedMap>]) -> Result<Option<usize>, MergeError> {
-        let Some(reference) = self.config.reference else { return Ok(None) };
+    /// The position of the configured reference map, checked: `Waiting` while it is not prepared.
+    fn reference_position(
+        &self,
+        ids: &[usize],
+        prepared: &[Option<Arc<PreparedMap>>],
+    ) -> Result<Reference, MergeError> {
+        let Some(reference) = self.config.reference else { return Ok(Reference::Centre) };
         let pos = ids
             .iter()
             .position(|&id| id == reference)
             .ok_or(MergeError::NoSuchReference { reference, maps: ids.len() })?;
-        match &prepared[pos].features {
-            Ok(_) => Ok(Some(pos)),
-            Err(reason) => Err(MergeError::UnusableReference { reference, reason: reason.clone() }),
+        match prepared[pos].as_deref().map(|p| &p.features) {
+            None => Ok(Reference::Waiting),
+            Some(Ok(_)) => Ok(Reference::Map(pos)),
+            Some(Err(reason)) => Err(MergeError::UnusableReference { reference, reason: reason.clone() }),
         }
     }
 
-    /// What pair `(a, b)` (positions) needs, given the maps' current generations.
-    fn work(&self, (ida, idb): (usize, usize), generations: (u64, u64), points: (usize, usize)) -> PairWork {
-        let Some(cached) = self.pairs.get(&(ida, idb)) else { return PairWork::Search };
-        let tracked = cached.verdict.edge().is_some_and(|e| e.tracked);
-        if self.settling && (cached.generations != generations || tracked) {
-            return PairWork::Search;
-        }
-        // Held back while both maps were placed: a map that lost its place needs every pair again.
-        let held_back = matches!(cached.verdict, PairVerdict::Rejected { reason: PairRejection::NoCandidate, .. });
-        if held_back && !(self.merged.contains(&ida) && self.merged.contains(&idb)) {
-            return PairWork::Search;
-        }
-        if cached.generations == generations {
-            return PairWork::Cached;
-        }
-        let grown = |now: usize, then: usize| now as f64 >= (1.0 + self.config.reverify_growth) * then.max(1) as f64;
-        let reverify = grown(points.0, cached.searched_at.0) || grown(points.1, cached.searched_at.1);
-        if cached.verdict.edge().is_some() && !reverify { PairWork::Track } else { PairWork::Search }
-    }
-
-    /// Verdicts of all pairs of usable maps: cached ones reused, links tracked, and at most
-    /// [`MergeConfig::max_searches`] global registrations, all in parallel; with the number of
-    /// pairs left waiting for a search and the time spent comparing places. While settling, a pair
-    /// with a map still waiting to be prepared (`deferred`, ids) waits too: searching it now would
-    /// only be done again.
-    fn estimate_pairs(
-        &mut self,
-        ids: &[usize],
-        prepared: &[Arc<PreparedMap>],
-        deferred: &[usize],
-    ) -> (Vec<PairReport>, usize, std::time::Duration) {
-        let current: Vec<u64> =
-            ids.iter().map(|id| self.maps[id].prepared.as_ref().map_or(0, |x| x.generation)).collect();
-        let generation = |p: usize| current[p];
-        let usable: Vec<usize> = (0..ids.len()).filter(|&p| prepared[p].usable().is_some()).collect();
-        let all: Vec<(usize, usize)> =
-            usable.iter().flat_map(|&a| usable.iter().filter(move |&&b| b > a).map(move |&b| (a, b))).collect();
-        let points = |(a, b): (usize, usize)| (prepared[a].points, prepared[b].points);
-        let generations = |(a, b): (usize, usize)| (generation(a), generation(b));
-        let work: Vec<PairWork> =
-            all.iter().map(|&p| self.work((ids[p.0], ids[p.1]), generations(p), points(p))).collect();
-        let tracks: Vec<(usize, usize)> = select(&all, &work, PairWork::Track);
-        let waits =
-            |&(a, b): &(usize, usize)| self.settling && (deferred.contains(&ids[a]) || deferred.contains(&ids[b]));
-        let (waiting, mut searches): (Vec<_>, Vec<_>) =
-            select(&all, &work, PairWork::Search).into_iter().partition(waits);
-        let waited = |&(a, b): &(usize, usize)| self.pairs.get(&(ids[a], ids[b])).map_or(0, |c| c.searched_in);
-        searches.sort_by_key(waited);
-        let config = &self.config;
-        let followed: Vec<Option<PairVerdict>> = tracks
-            .par_iter()
-            .map(|&(a, b)| {
-                let previous = self.pairs[&(ids[a], ids[b])].verdict.edge().expect("tracked pairs are linked");
-                track_pair((a, &prepared[a]), (b, &prepared[b]), previous, config).map(PairVerdict::Edge)
-            })
-            .collect();
-        let mut done: Vec<(usize, usize)> = Vec::new();
-        for (&(a, b), verdict) in tracks.iter().zip(followed) {
-            match verdict {
-                Some(verdict) => {
-                    let cached = self.pairs.get_mut(&(ids[a], ids[b])).expect("tracked pairs are cached");
-                    cached.verdict = verdict;
-                    cached.generations = generations((a, b));
-                    self.stats.tracked += 1;
-                    done.push((a, b));
-                }
-                // Lost: search again, first in line.
-                None => searches.insert(0, (a, b)),
-            }
-        }
-        let ((mut searches, unmatched), places_time) = timed(|| self.with_candidates(ids, searches));
-        let merge = self.stats.merges as u64;
-        for &(a, b) in &unmatched {
-            let verdict =
-                PairVerdict::Rejected { reason: PairRejection::NoCandidate, best: None, best_transform: None };
-            let before = self.pairs.get(&(ids[a], ids[b]));
-            let pair = CachedPair {
-                generations: generations((a, b)),
-                verdict,
-                searched_at: before.map_or(points((a, b)), |c| c.searched_at),
-                searched_in: before.map_or(0, |c| c.searched_in),
-            };
-            self.pairs.insert((ids[a], ids[b]), pair);
-            self.stats.unmatched += 1;
-            done.push((a, b));
-        }
-        let config = &self.config;
-        let over_budget = searches.split_off(searches.len().min(config.max_searches));
-        let found: Vec<PairVerdict> =
-            searches.par_iter().map(|&(a, b)| estimate_pair((a, &prepared[a]), (b, &prepared[b]), config)).collect();
-        self.stats.pair_estimates += searches.len();
-        for (&(a, b), verdict) in searches.iter().zip(found) {
-            let pair = CachedPair {
-                generations: generations((a, b)),
-                verdict,
-                searched_at: points((a, b)),
-                searched_in: merge,
-            };
-            self.pairs.insert((ids[a], ids[b]), pair);
-            done.push((a, b));
-        }
+    /// Every pair of usable maps with its verdict (positions renumbered to `ids`), marked fresh
+    /// when the round applied last computed it and no merge has reported it yet.
+    fn pair_reports(&mut self, ids: &[usize], prepared: &[Option<Arc<PreparedMap>>]) -> Vec<PairReport> {
+        let usable: Vec<usize> =
+            (0..ids.len()).filter(|&p| prepared[p].as_ref().is_some_and(|m| m.usable().is_some())).collect();
+        let fresh = std::mem::take(&mut self.last.fresh);
         let pending = PairVerdict::Rejected { reason: PairRejection::Pending, best: None, best_transform: None };
-        let reports = all
-            .into_iter()
+        usable
+            .iter()
+            .flat_map(|&a| usable.iter().filter(move |&&b| b > a).map(move |&b| (a, b)))
             .map(|(a, b)| {
-                let verdict = self.pairs.get(&(ids[a], ids[b])).map_or(&pending, |c| &c.verdict);
-                PairReport { a, b, verdict: with_positions(verdict, a, b), cached: !done.contains(&(a, b)) }
+                let key = (ids[a], ids[b]);
+                let verdict = self.pairs.get(&key).map_or(&pending, |c| &c.verdict);
+                PairReport { a, b, verdict: with_positions(verdict, a, b), cached: !fresh.contains(&key) }
             })
-            .collect();
-        (reports, over_budget.len() + waiting.len(), places_time)
+            .collect()
     }
 
     /// Paper eq. 11: the union of the merged maps in the global frame, voxelised to fuse
@@ -481,58 +420,11 @@ impl Merger {
         self.assembly.update(&placed)
     }
 
-    /// Step 2a: while settling, holds back the pairs waiting for a search that are not worth one:
-    /// two placed maps whose places show no candidate overlap (a link between them would only
-    /// duplicate what places both already). Only while settling: comparing two large maps' places
-    /// the first time costs tens of milliseconds, and doing it for the pairs of every re-prepared
-    /// map added 0.3-0.6 s to a streaming 16-robot merge, whose searches the budget bounds anyway;
-    /// a settling merge searches every changed pair, and there the gate saves the most (the
-    /// 16-robot load caught up in 48 s instead of 68). A pair with an unplaced map is searched even
-    /// without a candidate: two maps can overlap where no two keyframes stand at one place (one
-    /// robot saw from afar what the other drove through; the 16-robot campus load had a robot
-    /// linked only that way). A pair once linked is never held back: its link is the evidence.
-    fn with_candidates(&mut self, ids: &[usize], pairs: Vec<(usize, usize)>) -> (Positions, Positions) {
-        let (mut searched, mut unmatched) = (Vec::new(), Vec::new());
-        for (a, b) in pairs {
-            let key = (ids[a], ids[b]);
-            let placed = self.settling && self.merged.contains(&key.0) && self.merged.contains(&key.1);
-            if placed && self.candidate(key) == Some(false) { unmatched.push((a, b)) } else { searched.push((a, b)) }
-        }
-        (searched, unmatched)
-    }
-
-    /// Whether the places of maps `key` show a candidate overlap; `None` when they cannot tell (a
-    /// map without places, places not comparable) or the pair is linked.
-    fn candidate(&mut self, key: (usize, usize)) -> Option<bool> {
-        let linked = self.pairs.get(&key).is_some_and(|c| c.verdict.edge().is_some());
-        let pa = self.maps[&key.0].places.as_deref()?;
-        let pb = self.maps[&key.1].places.as_deref()?;
-        if linked || !pa.comparable(pb) {
-            return None;
-        }
-        let compared = self.compared.entry(key).or_default();
-        if !compared.found {
-            // The first time (or when a map was replaced by a smaller one), the smaller map's
-            // keyframes against the larger's: the descriptor distance is symmetric, and comparing
-            // both ways doubled the cost of a settling merge's first comparisons.
-            let fresh =
-                compared.since == Since::default() || compared.since.a > pa.len() || compared.since.b > pb.len();
-            let since = match (fresh, pa.len() <= pb.len()) {
-                (false, _) => compared.since,
-                (true, true) => Since { a: 0, b: pb.len() },
-                (true, false) => Since { a: pa.len(), b: 0 },
-            };
-            compared.found = pa.best_match(pb, since, &self.config.places).is_some();
-            compared.since = Places::since(pa, pb);
-        }
-        Some(compared.found)
-    }
-
     /// Per-map reports from the chained tree.
     fn map_reports(
         &self,
         ids: &[usize],
-        prepared: &[Arc<PreparedMap>],
+        prepared: &[Option<Arc<PreparedMap>>],
         pairs: &[PairReport],
         chained: &[Option<Chained>],
     ) -> Vec<MapReport> {
@@ -544,16 +436,20 @@ impl Merger {
                     revision: slot.revision,
                     points: slot.cloud.len(),
                     dropped_non_finite: slot.dropped_non_finite,
-                    status: status(p, &prepared[p], pairs, chained[p].as_ref()),
+                    status: status(p, prepared[p].as_deref(), pairs, chained[p].as_ref()),
                 }
             })
             .collect()
     }
 }
 
-/// The pairs whose work is `kind`.
-fn select(all: &[(usize, usize)], work: &[PairWork], kind: PairWork) -> Vec<(usize, usize)> {
-    all.iter().zip(work).filter(|(_, w)| **w == kind).map(|(p, _)| *p).collect()
+/// Which map the global frame is: a configured one, one still waiting for its preparation (then no
+/// map is placed yet), or the tree centre.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Reference {
+    Map(usize),
+    Waiting,
+    Centre,
 }
 
 /// A cached verdict with its edge renumbered to the current map positions (maps may have been
@@ -573,8 +469,9 @@ struct Layout {
 }
 
 /// Builds the match graph from the accepted edges and chains the reference component's tree.
-fn layout(prepared: &[Arc<PreparedMap>], pairs: &[PairReport], reference: Option<usize>) -> Layout {
+fn layout(prepared: &[Option<Arc<PreparedMap>>], pairs: &[PairReport], reference: Reference) -> Layout {
     let n = prepared.len();
+    let nothing = || Layout { root: None, tree: Vec::new(), chained: vec![None; n] };
     let edges: Vec<GraphEdge> = pairs
         .iter()
         .filter_map(|p| p.verdict.edge())
@@ -582,23 +479,24 @@ fn layout(prepared: &[Arc<PreparedMap>], pairs: &[PairReport], reference: Option
         .collect();
     let forest = graph::maximum_spanning_forest(n, &edges);
     let components = graph::components(n, &edges, &forest);
-    // Without a configured reference: the largest component among usable maps (an unusable map is
-    // a component of one and must not win a tie against a usable one).
-    let component = match reference {
-        Some(r) => components.iter().find(|c| c.contains(&r)),
-        None => components.iter().find(|c| prepared[c[0]].usable().is_some()),
+    let usable = |p: usize| prepared[p].as_ref().is_some_and(|m| m.usable().is_some());
+    // Without a configured reference: the largest component among usable maps (an unusable or
+    // unprepared map is a component of one and must not win a tie against a usable one).
+    let (component, reference) = match reference {
+        Reference::Waiting => return nothing(),
+        Reference::Map(r) => (components.iter().find(|c| c.contains(&r)), Some(r)),
+        Reference::Centre => (components.iter().find(|c| usable(c[0])), None),
     };
-    let Some(component) = component else {
-        return Layout { root: None, tree: Vec::new(), chained: vec![None; n] };
-    };
+    let Some(component) = component else { return nothing() };
     let tree: Vec<usize> = forest.into_iter().filter(|&i| component.contains(&edges[i].a)).collect();
     let root = reference.or_else(|| graph::tree_centre(n, &edges, &tree, component)).expect("non-empty component");
     let chained = graph::chain(n, &edges, &tree, root);
     Layout { root: Some(root), tree: tree.iter().map(|&i| (edges[i].a, edges[i].b)).collect(), chained }
 }
 
-/// Where map `p` ended up, and why.
-fn status(p: usize, map: &PreparedMap, pairs: &[PairReport], chained: Option<&Chained>) -> MapStatus {
+/// Where map `p` ended up, and why (`map`: its preparation, `None` while it waits for one).
+fn status(p: usize, map: Option<&PreparedMap>, pairs: &[PairReport], chained: Option<&Chained>) -> MapStatus {
+    let Some(map) = map else { return MapStatus::Unmerged(Unmerged::Waiting) };
     if let Err(e) = &map.features {
         return MapStatus::Unmerged(Unmerged::Unusable(e.clone()));
     }

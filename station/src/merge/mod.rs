@@ -49,7 +49,9 @@
 //! map recomputes only its pairs; a map that only grows is prepared again once it has grown by
 //! [`MergeConfig::refresh_growth`], a linked pair is then tracked from its last transform
 //! ([`track_pair`]) instead of searched again, and a merge runs at most
-//! [`MergeConfig::max_searches`] global registrations (see [`merger`]). Bad input (empty or tiny maps, NaN points) gives an unmerged map with
+//! [`MergeConfig::max_searches`] global registrations (see [`merger`]). That estimation is a
+//! [`Round`] that can run on other threads while the merger composes global maps from the
+//! placements found so far (the station does). Bad input (empty or tiny maps, NaN points) gives an unmerged map with
 //! a reason, never a panic.
 
 pub mod ambiguity;
@@ -60,6 +62,7 @@ pub mod graph;
 pub mod map;
 pub mod merger;
 pub mod places;
+mod round;
 
 use std::time::Duration;
 
@@ -73,7 +76,7 @@ use places::PlaceConfig;
 
 pub use estimate::{Edge, PairRejection, PairVerdict, estimate_pair, track_pair};
 pub use map::PreparedMap;
-pub use merger::Merger;
+pub use merger::{Merger, MergerStats, Round, RoundTiming};
 
 /// Default edge threshold of [`MergeConfig::outdoor`].
 pub const OUTDOOR_MIN_CONFIDENCE: f64 = 0.09;
@@ -333,6 +336,9 @@ pub enum MergeError {
         /// Why its features failed.
         reason: FeatureError,
     },
+    /// The threads that run rounds of estimation could not be started.
+    #[error("cannot start the estimation threads: {0}")]
+    Threads(String),
 }
 
 /// Why a map was left out of the global map.
@@ -347,6 +353,9 @@ pub enum Unmerged {
     /// It aligns with other maps, but none connected to the reference map.
     #[error("aligned only with maps outside the reference component")]
     OtherComponent,
+    /// It has not been prepared yet: a round of estimation is still to take it.
+    #[error("waiting for its first preparation")]
+    Waiting,
 }
 
 /// Where a map ended up.

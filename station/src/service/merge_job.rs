@@ -1,5 +1,8 @@
 //! One merge job, run on a blocking thread: each robot's local map from its keyframes and latest
-//! poses, the long-lived [`Merger`] over them, and the `GlobalMap` message of the result.
+//! poses, the long-lived [`Merger`] over them, and the `GlobalMap` message of the result. The
+//! merger's rounds of estimation run beside the jobs ([`super::estimator`]): a job applies the
+//! round that finished, starts the next, and composes the global map from the placements found
+//! so far.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -17,10 +20,11 @@ use proto::{CompressedCloud, Fleet, GlobalMap, MergeEdge, MergeStatus, RobotPlac
 use rayon::prelude::*;
 use rustc_hash::FxHashSet;
 
+use super::estimator::{Estimator, Notify};
 use super::fleet_state::{Basis, FleetState};
 use super::ingest;
 use crate::merge::places::Places;
-use crate::merge::{MergeConfig, MergeError, MergeReport, Merger, PairVerdict};
+use crate::merge::{MergeConfig, MergeError, MergeReport, Merger, PairVerdict, RoundTiming};
 
 /// One robot's input to a job: its keyframe clouds with their poses, at one map revision.
 #[derive(Clone, Debug)]
@@ -76,6 +80,10 @@ pub struct MergeOutcome {
     pub basis: BTreeMap<u32, Basis>,
     /// Wall time of the job.
     pub elapsed: Duration,
+    /// The round of estimation this job applied, if one had finished: its wall time.
+    pub round: Option<Duration>,
+    /// A round of estimation is running: the station is called back when it finishes.
+    pub estimating: bool,
     /// The global map's points as merged, before the codec, with their robots (for the live view).
     pub cloud: MapCloud,
     /// Per robot, the bytes the merge keeps for it between jobs (see [`MergeWorker::memory`]).
@@ -105,6 +113,7 @@ struct LocalMap {
 /// The merger and what it has been given, kept across jobs so that re-merges reuse its caches.
 pub struct MergeWorker {
     merger: Merger,
+    estimator: Estimator,
     /// Per robot, the local map given to the merger.
     maps: BTreeMap<u32, LocalMap>,
     /// Per robot, each keyframe's range image (sensor frame: new poses only move it).
@@ -145,11 +154,13 @@ impl RobotPlaces {
 }
 
 impl MergeWorker {
-    /// A worker with an empty merger.
-    pub fn new(config: MergeConfig) -> Result<Self, MergeError> {
+    /// A worker with an empty merger; `notify` is called when a round of estimation finishes.
+    pub fn new(config: MergeConfig, notify: Notify) -> Result<Self, MergeError> {
         let voxel = local_map_voxel(&config);
+        let estimator = Estimator::new(notify).map_err(|e| MergeError::Threads(e.to_string()))?;
         Ok(Self {
             merger: Merger::new(config)?,
+            estimator,
             maps: BTreeMap::new(),
             images: BTreeMap::new(),
             places: BTreeMap::new(),
@@ -157,8 +168,9 @@ impl MergeWorker {
         })
     }
 
-    /// Merges the robots' current maps into global map `revision` of `fleet`; `settle` when the
-    /// robots have gone quiet (see [`Merger::settle`]).
+    /// Merges the robots' current maps into global map `revision` of `fleet` at the placements
+    /// found so far: applies the round of estimation that has finished, if one has, and starts the
+    /// next; `settle` when the robots have gone quiet (see [`Merger::settle`]).
     pub fn run(
         &mut self,
         fleet: &Fleet,
@@ -172,9 +184,17 @@ impl MergeWorker {
         }
         if settle {
             self.merger.settle();
+        } else {
+            self.merger.unsettle();
         }
-        let report = self.merger.merge()?;
-        log_report(&report);
+        let round = self.take_round();
+        if !self.estimator.busy()
+            && let Some(next) = self.merger.plan()
+        {
+            self.estimator.start(next);
+        }
+        let report = self.merger.compose()?;
+        log_report(&report, round.as_ref());
         let map = global_map(fleet, revision, &report, robots);
         let bytes = map.encode_to_vec();
         let basis = robots.iter().map(|r| (r.robot, r.basis)).collect();
@@ -183,7 +203,38 @@ impl MergeWorker {
         // A merge frees hundreds of megabytes of preparations, decoded keyframes and pair work on
         // rayon's threads; glibc keeps what each thread freed in its own arena until told.
         cloud::memory::release_free_memory();
-        Ok(MergeOutcome { map, bytes, basis, elapsed: clock.elapsed(), cloud, memory: self.memory() })
+        Ok(MergeOutcome {
+            map,
+            bytes,
+            basis,
+            elapsed: clock.elapsed(),
+            round: round.map(|t| t.total),
+            estimating: self.estimator.busy(),
+            cloud,
+            memory: self.memory(),
+        })
+    }
+
+    /// True while a round of estimation runs or waits to be applied.
+    pub fn estimating(&self) -> bool {
+        self.estimator.busy()
+    }
+
+    /// Applies the round that has finished, if one has; its timing.
+    fn take_round(&mut self) -> Option<RoundTiming> {
+        match self.estimator.finished()? {
+            Ok(round) => {
+                let timing = round.timing();
+                self.merger.apply(round);
+                Some(timing)
+            }
+            Err(e) => {
+                // Its maps and pairs are as they were: the next round takes them again.
+                tracing::error!("round of estimation failed: {e}");
+                self.merger.abandon();
+                None
+            }
+        }
     }
 
     /// Brings robot `r`'s local map up to its snapshot: new keyframes are added to it (the map
@@ -323,7 +374,7 @@ fn decode(
 }
 
 /// Why pairs were refused and where the time went: what an operator needs when a robot stays out.
-fn log_report(report: &MergeReport) {
+fn log_report(report: &MergeReport, round: Option<&RoundTiming>) {
     let id = |position: usize| report.maps[position].id;
     for pair in report.pairs.iter().filter(|p| !p.cached) {
         match &pair.verdict {
@@ -353,14 +404,16 @@ fn log_report(report: &MergeReport) {
     }
     let t = &report.timing;
     let ms = cloud::stopwatch::millis;
-    tracing::info!(
-        "merge: features {:.0} ms, pairs {:.0} ms (places {:.0} ms), graph {:.0} ms, assembly {:.0} ms",
-        ms(t.features),
-        ms(t.pairs),
-        ms(t.places),
-        ms(t.graph),
-        ms(t.assemble)
-    );
+    if let Some(r) = round {
+        tracing::info!(
+            "round: features {:.0} ms, pairs {:.0} ms (places {:.0} ms), {:.0} ms in all",
+            ms(r.features),
+            ms(r.pairs),
+            ms(r.places),
+            ms(r.total)
+        );
+    }
+    tracing::info!("merge: graph {:.0} ms, assembly {:.0} ms", ms(t.graph), ms(t.assemble));
 }
 
 /// The finest voxel any merge stage works at: coarser local maps would starve it, finer ones only

@@ -6,6 +6,7 @@
 //! - [`backfill`]: which keyframes to ask a robot's keyframe store for, one request at a time.
 //! - [`merge_queue`]: coalesced, debounced merge scheduling.
 //! - [`merge_job`]: local maps, the long-lived merger and the `GlobalMap` message.
+//! - [`estimator`]: the merger's rounds of estimation, on threads of their own beside the jobs.
 //! - [`live_view`]: the live view and recording (`--foxglove`, `--record`), when one is given.
 //! - [`store`]: persistence in redb, written in batches by a writer thread.
 //! - [`station`]: the event loop tying them together; [`Station`] and [`run`] start it.
@@ -16,6 +17,7 @@
 
 pub mod backfill;
 pub mod client;
+pub mod estimator;
 pub mod fleet_state;
 pub mod ingest;
 pub mod live_view;
@@ -114,6 +116,8 @@ pub struct StationProgress {
     pub merge_pending: bool,
     /// A merge is running.
     pub merge_running: bool,
+    /// A round of estimation is running (or finished and not yet applied by a merge).
+    pub estimating: bool,
     /// What the station holds per robot.
     pub memory: BTreeMap<u32, RobotMemory>,
     /// What the database has committed (all zero without a data directory).
@@ -146,10 +150,10 @@ impl StationProgress {
         self.keyframes.values().sum()
     }
 
-    /// True when a global map is published and was built from everything held: nothing pending,
-    /// nothing running.
+    /// True when a global map is published and was built from everything held, with every
+    /// estimate done: nothing pending, nothing running.
     pub fn up_to_date(&self) -> bool {
-        self.revision > 0 && !self.merge_pending && !self.merge_running
+        self.revision > 0 && !self.merge_pending && !self.merge_running && !self.estimating
     }
 }
 
@@ -170,6 +174,8 @@ pub struct StationSummary {
     pub merges: u64,
     /// Wall time of each merge, milliseconds.
     pub merge_ms: Vec<f64>,
+    /// Wall time of each round of estimation the merges applied, milliseconds.
+    pub round_ms: Vec<f64>,
 }
 
 /// Runs a station on `session` until `shutdown` resolves, then commits the last database batch.

@@ -49,7 +49,8 @@ impl Station {
     /// Opens the database (if any), reloads it, declares the station's Zenoh entities, publishes
     /// the persisted global map and starts the event loop.
     pub async fn start(session: Session, config: StationConfig) -> Result<Station, StationError> {
-        let worker = MergeWorker::new(config.merge.clone())?;
+        let (events_tx, events) = mpsc::unbounded_channel();
+        let worker = new_worker(&config.merge, &events_tx)?;
         let (store, persisted) = open_store(&config).await?;
         let (progress_tx, progress) = watch::channel(StationProgress::default());
         let progress_tx = Arc::new(progress_tx);
@@ -59,7 +60,6 @@ impl Station {
             .await
             .map_err(|e| StationError::Task(e.to_string()))?;
         let endpoints = Endpoints::declare(&session, &config.fleet).await?;
-        let (events_tx, events) = mpsc::unbounded_channel();
         let mut core = Core::new(session, &config, worker, writer, progress_tx, events_tx, reloaded);
         core.publish_reloaded(&endpoints).await;
         let (stop, stopped) = oneshot::channel();
@@ -218,6 +218,8 @@ enum Event {
     Reply { robot: u32, sample: Sample },
     /// The backfill request to `robot` has ended, as said.
     BackfillDone { robot: u32, ended: Ended },
+    /// A round of estimation has finished: the next merge job applies it.
+    Estimated,
 }
 
 /// Where a keyframe came from.
@@ -225,6 +227,12 @@ enum Event {
 enum Origin {
     Live,
     Backfill,
+}
+
+/// A merge worker whose finished rounds of estimation call for a merge.
+fn new_worker(config: &MergeConfig, events: &mpsc::UnboundedSender<Event>) -> Result<MergeWorker, MergeError> {
+    let events = events.clone();
+    MergeWorker::new(config.clone(), Arc::new(move || drop(events.send(Event::Estimated))))
 }
 
 /// The result of a merge job, with the worker handed back.
@@ -238,6 +246,7 @@ struct Counters {
     backfill_requests: u64,
     merges: u64,
     merge_ms: Vec<f64>,
+    round_ms: Vec<f64>,
     /// Per robot, the merge's bytes as of the last merge.
     map_memory: BTreeMap<u32, u64>,
 }
@@ -252,6 +261,8 @@ struct Core {
     backfill: Backfill,
     /// The merger, `None` while a job has it.
     worker: Option<MergeWorker>,
+    /// The last merge job left a round of estimation running.
+    estimating: bool,
     latest: Option<Published>,
     next_revision: u64,
     counters: Counters,
@@ -289,6 +300,7 @@ impl Core {
             queue,
             backfill: Backfill::new(BACKFILL_RETRY),
             worker: Some(worker),
+            estimating: false,
             latest: reloaded.latest,
             counters: Counters { malformed: reloaded.rejected, ..Counters::default() },
             writer,
@@ -445,6 +457,7 @@ impl Core {
                 }
             }
             Event::BackfillDone { robot, ended } => self.backfill.done(robot, ended, Instant::now()),
+            Event::Estimated => self.queue.changed(Instant::now()),
         }
     }
 
@@ -484,13 +497,15 @@ impl Core {
         self.queue.finished();
         match joined {
             Ok((worker, outcome)) => {
+                self.estimating = worker.estimating();
                 self.worker = Some(worker);
                 match outcome {
                     Ok(outcome) => {
                         // Merged while robots streamed, or work left over (searches over the
                         // budget): merge again, changes or not, so that the fleet at rest gets a
-                        // settled map (see `Merger::settle`).
-                        if !outcome.map.settled {
+                        // settled map (see `Merger::settle`). While a round of estimation runs,
+                        // its end calls for the next merge.
+                        if !outcome.map.settled && !outcome.estimating {
                             self.queue.changed(Instant::now());
                         }
                         self.publish_map(outcome, publisher).await
@@ -500,19 +515,21 @@ impl Core {
             }
             Err(e) => {
                 error!("merge job failed: {e}");
-                self.worker = MergeWorker::new(self.merge_config.clone()).ok();
+                self.estimating = false;
+                self.worker = new_worker(&self.merge_config, &self.events).ok();
             }
         }
     }
 
     async fn publish_map(&mut self, outcome: MergeOutcome, publisher: &Publisher<'static>) {
-        let MergeOutcome { map, bytes, basis, elapsed, cloud, memory } = outcome;
+        let MergeOutcome { map, bytes, basis, elapsed, round, cloud, memory, .. } = outcome;
         self.counters.map_memory = memory;
         let ms = cloud::stopwatch::millis(elapsed);
         let merged = map.robots.iter().filter(|r| r.status == proto::MergeStatus::Merged as i32).count();
         info!("global map revision {}: {merged} of {} robots merged ({ms:.0} ms)", map.revision, map.robots.len());
         self.counters.merges += 1;
         self.counters.merge_ms.push(ms);
+        self.counters.round_ms.extend(round.map(cloud::stopwatch::millis));
         self.next_revision = map.revision + 1;
         let bytes: Arc<[u8]> = bytes.into();
         // Committed before it is published: after a crash the station must never publish a
@@ -609,6 +626,7 @@ impl Core {
                 revision: self.revision(),
                 merge_pending: self.queue.depth() > 0,
                 merge_running: self.queue.running(),
+                estimating: self.estimating,
                 memory: self.memory(),
                 committed: p.committed,
             };
@@ -634,6 +652,7 @@ impl Core {
             backfilled: self.counters.backfilled,
             merges: self.counters.merges,
             merge_ms: self.counters.merge_ms,
+            round_ms: self.counters.round_ms,
         }
     }
 }

@@ -1,0 +1,415 @@
+//! A round of estimation: the maps' preparations and the pairs' verdicts, taken out of the
+//! [`Merger`](super::Merger) so that they can run while the merger goes on publishing maps.
+//!
+//! Composing a global map from the placements already found takes a fraction of a second; finding
+//! placements (preparing grown maps, tracking links, searching pairs) takes seconds at 16 robots.
+//! map_merge_3d runs the two at separate rates for the same reason. A round owns what it works on
+//! (the maps' clouds and preparations are shared, not copied; the pair cache is cloned), so
+//! [`Round::run`] needs no access to the merger; [`super::Merger::apply`] takes its results back.
+//! Everything a round decides is decided as the synchronous merge decided it: which maps to
+//! prepare, which pairs to track, search or hold back.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use cloud::PointCloud;
+use cloud::stopwatch::{Stopwatch, timed};
+use cloud::visibility::Views;
+use rayon::prelude::*;
+use rustc_hash::{FxHashMap, FxHashSet};
+
+use super::places::{Places, Since};
+use super::{MergeConfig, PairRejection, PairVerdict, PreparedMap, estimate_pair, track_pair};
+
+/// A map's preparation and what it was made from.
+#[derive(Clone)]
+pub(super) struct Preparation {
+    pub map: Arc<PreparedMap>,
+    /// Bumped at every preparation of the map; pair verdicts are cached against it.
+    pub generation: u64,
+}
+
+/// A pair verdict and what it was computed from.
+#[derive(Clone)]
+pub(super) struct CachedPair {
+    /// Generations of the two maps' preparations.
+    pub generations: (u64, u64),
+    pub verdict: PairVerdict,
+    /// Points of the two prepared maps when the last global registration ran.
+    pub searched_at: (usize, usize),
+    /// Round of the last global registration: the longest-waiting pair is searched first.
+    pub searched_in: u64,
+}
+
+/// How far two maps' places were compared.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Compared {
+    pub since: Since,
+    pub found: bool,
+}
+
+/// How much work the merger has done since it was created.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MergerStats {
+    /// Maps prepared (features and Gaussians).
+    pub preparations: usize,
+    /// Global registrations of pairs (searches).
+    pub pair_estimates: usize,
+    /// Linked pairs followed by VGICP from their last transform and kept.
+    pub tracked: usize,
+    /// Merges run (global maps composed).
+    pub merges: usize,
+    /// Searches not run because no place of either map looked like one of the other's.
+    pub unmatched: usize,
+    /// Rounds of estimation run.
+    pub rounds: usize,
+}
+
+impl std::ops::AddAssign for MergerStats {
+    fn add_assign(&mut self, other: Self) {
+        self.preparations += other.preparations;
+        self.pair_estimates += other.pair_estimates;
+        self.tracked += other.tracked;
+        self.merges += other.merges;
+        self.unmatched += other.unmatched;
+        self.rounds += other.rounds;
+    }
+}
+
+/// One map as a round sees it.
+pub(super) struct RoundMap {
+    pub cloud: Arc<PointCloud>,
+    pub views: Option<Arc<Views>>,
+    pub places: Option<Arc<Places>>,
+    pub prepared: Option<Preparation>,
+    pub reshaped: bool,
+    /// The map's shape counter when the round was planned.
+    pub shape: u64,
+}
+
+impl RoundMap {
+    /// Whether the round must prepare the map (new or reshaped), may (grown past
+    /// `refresh_growth`, the growth it shows), or need not.
+    fn staleness(&self, refresh_growth: f64) -> Staleness {
+        match &self.prepared {
+            None => Staleness::Required,
+            Some(_) if self.reshaped => Staleness::Required,
+            Some(p) => {
+                let growth = self.cloud.len() as f64 / p.map.points.max(1) as f64 - 1.0;
+                if growth >= refresh_growth { Staleness::Grown(growth) } else { Staleness::Fresh }
+            }
+        }
+    }
+}
+
+enum Staleness {
+    Required,
+    Grown(f64),
+    Fresh,
+}
+
+/// Pairs of maps by their positions.
+type Positions = Vec<(usize, usize)>;
+
+/// What one pair needs this round.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum PairWork {
+    /// Its cached verdict stands.
+    Cached,
+    /// Linked before: follow the link.
+    Track,
+    /// A global registration (or, over budget, wait).
+    Search,
+}
+
+/// Wall time of a round's steps.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RoundTiming {
+    /// Preparing maps (features, Gaussians).
+    pub features: Duration,
+    /// Tracking and searching pairs.
+    pub pairs: Duration,
+    /// Of `pairs`: comparing the places of the pairs waiting for a search.
+    pub places: Duration,
+    /// End to end.
+    pub total: Duration,
+}
+
+/// A round of estimation, planned by [`super::Merger::plan`], run anywhere by [`Round::run`] and
+/// taken back by [`super::Merger::apply`].
+pub struct Round {
+    pub(super) config: MergeConfig,
+    /// This round's number (1, 2, ...).
+    pub(super) number: u64,
+    pub(super) settling: bool,
+    /// The merger's change counter when the round was planned.
+    pub(super) changes: u64,
+    /// Ids of the maps the last merge placed.
+    pub(super) merged: FxHashSet<usize>,
+    pub(super) maps: std::collections::BTreeMap<usize, RoundMap>,
+    pub(super) pairs: FxHashMap<(usize, usize), CachedPair>,
+    pub(super) compared: FxHashMap<(usize, usize), Compared>,
+    pub(super) next_generation: u64,
+    /// Ids of the maps this round prepared.
+    pub(super) prepared: Vec<usize>,
+    /// Pairs (ids) whose verdict this round computed.
+    pub(super) done: FxHashSet<(usize, usize)>,
+    /// Grown maps and pairs left for a later round.
+    pub(super) pending: usize,
+    pub(super) stats: MergerStats,
+    pub(super) timing: RoundTiming,
+    pub(super) ran: bool,
+}
+
+impl Round {
+    /// Prepares the stale maps, then tracks, compares places and searches pairs: the seconds of a
+    /// merge. Idempotent: a round runs once.
+    pub fn run(&mut self) {
+        if self.ran {
+            return;
+        }
+        self.ran = true;
+        let watch = Stopwatch::start();
+        let (deferred, features) = timed(|| self.prepare_stale());
+        let ((deferred_pairs, places), pairs) = timed(|| self.estimate_pairs(&deferred));
+        self.pending = deferred.len() + deferred_pairs;
+        self.stats.rounds += 1;
+        self.timing = RoundTiming { features, pairs, places, total: watch.elapsed() };
+    }
+
+    /// Wall time of its steps (zero before it ran).
+    pub fn timing(&self) -> RoundTiming {
+        self.timing
+    }
+
+    /// True when running it would change nothing: no map to prepare, no pair to track or search.
+    pub(super) fn idle(&self) -> bool {
+        let (required, grown) = self.stale();
+        if !required.is_empty() || !grown.is_empty() {
+            return false;
+        }
+        let (ids, prepared) = self.current();
+        let all = usable_pairs(&prepared);
+        all.iter().all(|&(a, b)| {
+            let key = (ids[a], ids[b]);
+            self.work(key, self.generations(key), (prepared[a].points, prepared[b].points)) == PairWork::Cached
+        })
+    }
+
+    /// Maps that must be prepared (ids) and grown ones that may be (id, placed, growth).
+    fn stale(&self) -> (Vec<usize>, Vec<(usize, bool, f64)>) {
+        let config = &self.config;
+        let mut required = Vec::new();
+        let mut grown = Vec::new();
+        // While a usable map waits to be placed, its searches need the others' newest parts.
+        let unusable = |map: &RoundMap| map.prepared.as_ref().is_some_and(|p| p.map.usable().is_none());
+        let all_placed = self.maps.iter().all(|(id, map)| self.merged.contains(id) || unusable(map));
+        for (&id, map) in &self.maps {
+            let merged = self.merged.contains(&id);
+            // Settling: any growth at all counts.
+            let refresh_growth = match (self.settling, merged && all_placed) {
+                (true, _) => f64::MIN_POSITIVE,
+                (false, true) => config.merged_refresh_growth,
+                (false, false) => config.refresh_growth,
+            };
+            match map.staleness(refresh_growth) {
+                Staleness::Required => required.push(id),
+                Staleness::Grown(g) => grown.push((id, merged, g)),
+                Staleness::Fresh => {}
+            }
+        }
+        (required, grown)
+    }
+
+    /// Prepares, in parallel, every map that must be (new, reshaped) and up to
+    /// [`MergeConfig::max_refreshes`] of the grown ones, unmerged before merged and then the most
+    /// grown first, settling or not (a settling merge that prepared every map at once took 19 s at
+    /// 16 robots); returns the ids of the grown maps that wait for a later round. Once every usable
+    /// map is placed, a placed one counts as grown only at [`MergeConfig::merged_refresh_growth`].
+    fn prepare_stale(&mut self) -> Vec<usize> {
+        let (mut required, mut grown) = self.stale();
+        grown.sort_by(|a, b| a.1.cmp(&b.1).then(b.2.total_cmp(&a.2)));
+        let (now, later) = grown.split_at(grown.len().min(self.config.max_refreshes));
+        required.extend(now.iter().map(|&(id, ..)| id));
+        let deferred: Vec<usize> = later.iter().map(|&(id, ..)| id).collect();
+        self.stats.preparations += required.len();
+        let config = &self.config;
+        let fresh: Vec<(usize, PreparedMap)> = required
+            .par_iter()
+            .map(|id| {
+                let map = &self.maps[id];
+                (*id, PreparedMap::new(PointCloud::clone(&map.cloud), map.views.clone(), config))
+            })
+            .collect();
+        for (id, prepared) in fresh {
+            let map = self.maps.get_mut(&id).expect("prepared maps exist");
+            map.prepared = Some(Preparation { map: Arc::new(prepared), generation: self.next_generation });
+            map.reshaped = false;
+            self.next_generation += 1;
+            self.prepared.push(id);
+        }
+        deferred
+    }
+
+    /// Ids and preparations of the prepared maps, in id order.
+    fn current(&self) -> (Vec<usize>, Vec<Arc<PreparedMap>>) {
+        self.maps.iter().filter_map(|(&id, m)| Some((id, Arc::clone(&m.prepared.as_ref()?.map)))).unzip()
+    }
+
+    /// Current generations of the preparations of maps `(a, b)` (ids).
+    fn generations(&self, (a, b): (usize, usize)) -> (u64, u64) {
+        let generation = |id: usize| self.maps[&id].prepared.as_ref().map_or(0, |p| p.generation);
+        (generation(a), generation(b))
+    }
+
+    /// What pair `(ida, idb)` needs, given the maps' current generations.
+    fn work(&self, (ida, idb): (usize, usize), generations: (u64, u64), points: (usize, usize)) -> PairWork {
+        let Some(cached) = self.pairs.get(&(ida, idb)) else { return PairWork::Search };
+        let tracked = cached.verdict.edge().is_some_and(|e| e.tracked);
+        if self.settling && (cached.generations != generations || tracked) {
+            return PairWork::Search;
+        }
+        // Held back while both maps were placed: a map that lost its place needs every pair again.
+        let held_back = matches!(cached.verdict, PairVerdict::Rejected { reason: PairRejection::NoCandidate, .. });
+        if held_back && !(self.merged.contains(&ida) && self.merged.contains(&idb)) {
+            return PairWork::Search;
+        }
+        if cached.generations == generations {
+            return PairWork::Cached;
+        }
+        let grown = |now: usize, then: usize| now as f64 >= (1.0 + self.config.reverify_growth) * then.max(1) as f64;
+        let reverify = grown(points.0, cached.searched_at.0) || grown(points.1, cached.searched_at.1);
+        if cached.verdict.edge().is_some() && !reverify { PairWork::Track } else { PairWork::Search }
+    }
+
+    /// Verdicts of the pairs of usable maps that need one: links tracked, and at most
+    /// [`MergeConfig::max_searches`] global registrations, all in parallel; returns the number of
+    /// pairs left waiting for a search and the time spent comparing places. While settling, a
+    /// pair with a map still waiting to be prepared (`deferred`, ids) waits too: searching it now
+    /// would only be done again.
+    fn estimate_pairs(&mut self, deferred: &[usize]) -> (usize, Duration) {
+        let (ids, prepared) = self.current();
+        let all = usable_pairs(&prepared);
+        let key = |(a, b): (usize, usize)| (ids[a], ids[b]);
+        let points = |(a, b): (usize, usize)| (prepared[a].points, prepared[b].points);
+        let work: Vec<PairWork> = all.iter().map(|&p| self.work(key(p), self.generations(key(p)), points(p))).collect();
+        let tracks: Positions = select(&all, &work, PairWork::Track);
+        let waits =
+            |&(a, b): &(usize, usize)| self.settling && (deferred.contains(&ids[a]) || deferred.contains(&ids[b]));
+        let (waiting, mut searches): (Positions, Positions) =
+            select(&all, &work, PairWork::Search).into_iter().partition(waits);
+        let waited = |&p: &(usize, usize)| self.pairs.get(&key(p)).map_or(0, |c| c.searched_in);
+        searches.sort_by_key(waited);
+        let config = &self.config;
+        let followed: Vec<Option<PairVerdict>> = tracks
+            .par_iter()
+            .map(|&(a, b)| {
+                let previous = self.pairs[&key((a, b))].verdict.edge().expect("tracked pairs are linked");
+                track_pair((a, &prepared[a]), (b, &prepared[b]), previous, config).map(PairVerdict::Edge)
+            })
+            .collect();
+        for (&p, verdict) in tracks.iter().zip(followed) {
+            match verdict {
+                Some(verdict) => {
+                    let generations = self.generations(key(p));
+                    let cached = self.pairs.get_mut(&key(p)).expect("tracked pairs are cached");
+                    cached.verdict = verdict;
+                    cached.generations = generations;
+                    self.stats.tracked += 1;
+                    self.done.insert(key(p));
+                }
+                // Lost: search again, first in line.
+                None => searches.insert(0, p),
+            }
+        }
+        let ((mut searches, unmatched), places_time) = timed(|| self.with_candidates(&ids, searches));
+        for &p in &unmatched {
+            let verdict =
+                PairVerdict::Rejected { reason: PairRejection::NoCandidate, best: None, best_transform: None };
+            let before = self.pairs.get(&key(p));
+            let pair = CachedPair {
+                generations: self.generations(key(p)),
+                verdict,
+                searched_at: before.map_or(points(p), |c| c.searched_at),
+                searched_in: before.map_or(0, |c| c.searched_in),
+            };
+            self.pairs.insert(key(p), pair);
+            self.stats.unmatched += 1;
+            self.done.insert(key(p));
+        }
+        let config = &self.config;
+        let over_budget = searches.split_off(searches.len().min(config.max_searches));
+        let found: Vec<PairVerdict> =
+            searches.par_iter().map(|&(a, b)| estimate_pair((a, &prepared[a]), (b, &prepared[b]), config)).collect();
+        self.stats.pair_estimates += searches.len();
+        for (&p, verdict) in searches.iter().zip(found) {
+            let pair = CachedPair {
+                generations: self.generations(key(p)),
+                verdict,
+                searched_at: points(p),
+                searched_in: self.number,
+            };
+            self.pairs.insert(key(p), pair);
+            self.done.insert(key(p));
+        }
+        (over_budget.len() + waiting.len(), places_time)
+    }
+
+    /// Step 2a: while settling, holds back the pairs waiting for a search that are not worth one:
+    /// two placed maps whose places show no candidate overlap (a link between them would only
+    /// duplicate what places both already). Only while settling: comparing two large maps' places
+    /// the first time costs tens of milliseconds, and doing it for the pairs of every re-prepared
+    /// map added 0.3-0.6 s to a streaming 16-robot merge, whose searches the budget bounds anyway;
+    /// a settling merge searches every changed pair, and there the gate saves the most (the
+    /// 16-robot load caught up in 48 s instead of 68). A pair with an unplaced map is searched even
+    /// without a candidate: two maps can overlap where no two keyframes stand at one place (one
+    /// robot saw from afar what the other drove through; the 16-robot campus load had a robot
+    /// linked only that way). A pair once linked is never held back: its link is the evidence.
+    fn with_candidates(&mut self, ids: &[usize], pairs: Positions) -> (Positions, Positions) {
+        let (mut searched, mut unmatched) = (Vec::new(), Vec::new());
+        for (a, b) in pairs {
+            let key = (ids[a], ids[b]);
+            let placed = self.settling && self.merged.contains(&key.0) && self.merged.contains(&key.1);
+            if placed && self.candidate(key) == Some(false) { unmatched.push((a, b)) } else { searched.push((a, b)) }
+        }
+        (searched, unmatched)
+    }
+
+    /// Whether the places of maps `key` show a candidate overlap; `None` when they cannot tell (a
+    /// map without places, places not comparable) or the pair is linked.
+    fn candidate(&mut self, key: (usize, usize)) -> Option<bool> {
+        let linked = self.pairs.get(&key).is_some_and(|c| c.verdict.edge().is_some());
+        let pa = self.maps[&key.0].places.as_deref()?;
+        let pb = self.maps[&key.1].places.as_deref()?;
+        if linked || !pa.comparable(pb) {
+            return None;
+        }
+        let compared = self.compared.entry(key).or_default();
+        if !compared.found {
+            // The first time (or when a map was replaced by a smaller one), the smaller map's
+            // keyframes against the larger's: the descriptor distance is symmetric, and comparing
+            // both ways doubled the cost of a settling merge's first comparisons.
+            let fresh =
+                compared.since == Since::default() || compared.since.a > pa.len() || compared.since.b > pb.len();
+            let since = match (fresh, pa.len() <= pb.len()) {
+                (false, _) => compared.since,
+                (true, true) => Since { a: 0, b: pb.len() },
+                (true, false) => Since { a: pa.len(), b: 0 },
+            };
+            compared.found = pa.best_match(pb, since, &self.config.places).is_some();
+            compared.since = Places::since(pa, pb);
+        }
+        Some(compared.found)
+    }
+}
+
+/// Every pair (positions, `a < b`) of usable maps among `prepared`.
+pub(super) fn usable_pairs(prepared: &[Arc<PreparedMap>]) -> Positions {
+    let usable: Vec<usize> = (0..prepared.len()).filter(|&p| prepared[p].usable().is_some()).collect();
+    usable.iter().flat_map(|&a| usable.iter().filter(move |&&b| b > a).map(move |&b| (a, b))).collect()
+}
+
+/// The pairs whose work is `kind`.
+fn select(all: &[(usize, usize)], work: &[PairWork], kind: PairWork) -> Positions {
+    all.iter().zip(work).filter(|(_, w)| **w == kind).map(|(p, _)| *p).collect()
+}
