@@ -92,6 +92,8 @@ fn station_status_and_request_round_trip() {
             RobotMemory { robot: 1, keyframe_bytes: 16_400_000, map_bytes: 81_000_000 },
             RobotMemory { robot: 8, keyframe_bytes: 0, map_bytes: 0 },
         ],
+        estimating: true,
+        last_round_ms: 3014.5,
     });
     round_trip(&KeyframeRequest { seqs: vec![0, 5, 6, 7, u64::MAX], from_seq: None, limit: None });
     round_trip(&KeyframeRequest { seqs: vec![], from_seq: Some(42), limit: None });

@@ -166,7 +166,9 @@ impl Merger {
                     dropped_non_finite,
                     prepared: None,
                     reshaped: false,
-                    shape: 0,
+                    // Unique: a round planned before the map was removed and set again must not
+                    // take this map for the one it prepared.
+                    shape: self.changes,
                     views: None,
                     places: None,
                 };

@@ -221,6 +221,8 @@ fn status_fields(s: &StationStatus) -> Value {
         "keyframes": s.keyframes,
         "queue": s.merge_queue_depth,
         "last_merge_ms": round3(s.last_merge_ms),
+        "estimating": s.estimating,
+        "last_round_ms": round3(s.last_round_ms),
         "revision": s.global_map_revision,
         "malformed": s.malformed_payloads,
         "memory_mb": memory_mb(&s.memory),

@@ -84,6 +84,8 @@ impl StationView {
                 "merge_queue_depth": status.merge_queue_depth,
                 "merges": merges,
                 "last_merge_ms": status.last_merge_ms,
+                "estimating": status.estimating,
+                "last_round_ms": status.last_round_ms,
                 "global_map_revision": status.global_map_revision,
                 "malformed_payloads": status.malformed_payloads,
                 "memory_mb": memory_mb(&status.memory),

@@ -552,6 +552,8 @@ impl Core {
             keyframes: self.state.total_keyframes() as u64,
             merge_queue_depth: self.queue.depth(),
             last_merge_ms: self.counters.merge_ms.last().copied().unwrap_or(0.0),
+            estimating: self.estimating,
+            last_round_ms: self.counters.round_ms.last().copied().unwrap_or(0.0),
             global_map_revision: self.revision(),
             malformed_payloads: self.counters.malformed,
             stamp: Some(Timestamp::now()),
