@@ -54,8 +54,8 @@ pub enum PairRejection {
     /// A map of the pair has no features (see the map's own status).
     #[error("a map of the pair is unusable")]
     Unusable,
-    /// Not estimated yet: the merge's budget of global registrations went to other pairs
-    /// ([`MergeConfig::max_searches`]); a later merge takes it up.
+    /// Not estimated yet: the round's budget of global registrations went to other pairs
+    /// ([`MergeConfig::max_searches`]); a later round takes it up.
     #[error("not estimated yet (search budget spent on other pairs)")]
     Pending,
     /// Not searched: no keyframe of either map looks like one of the other's (their place

@@ -1,6 +1,6 @@
 //! The incremental merger: per-map preparations cached by generation, pair verdicts by the
 //! generations of their two maps, links tracked instead of searched again, and a bounded amount of
-//! global registration per merge.
+//! global registration per round of estimation.
 //!
 //! Robots send map updates one at a time; recomputing all N(N-1)/2 pairs for each would waste most
 //! of the station's time on pairs that did not change. A map that only grows ([`Merger::grow`]) is
@@ -9,7 +9,7 @@
 //! changes, a linked pair is tracked from its last transform ([`super::track_pair`], VGICP: tens of
 //! milliseconds) and searched again by global registration only when tracking fails its checks or
 //! a map has grown by [`MergeConfig::reverify_growth`] since the link was found; pairs never linked
-//! are searched at most [`MergeConfig::max_searches`] per merge, the longest-waiting first.
+//! are searched at most [`MergeConfig::max_searches`] per round, the longest-waiting first.
 //!
 //! That estimation is a [`Round`]: planned from the merger's state ([`Merger::plan`]), run on its
 //! own ([`Round::run`], no access to the merger) and taken back ([`Merger::apply`]). The global
@@ -121,8 +121,8 @@ impl Merger {
         self.stats
     }
 
-    /// Sets map `id` to `cloud` at `revision`, a map of any shape: it is prepared again at the
-    /// next merge. A revision already held is ignored.
+    /// Sets map `id` to `cloud` at `revision`, a map of any shape: it is prepared again by the
+    /// next round. A revision already held is ignored.
     pub fn update(&mut self, id: usize, revision: u64, cloud: PointCloud) {
         self.set(id, revision, cloud, true);
     }

@@ -177,12 +177,12 @@ pub struct MergeConfig {
     /// when the link was last found that way (default 1.0: at every doubling), so that a link made
     /// on small maps is re-examined on the larger evidence.
     pub reverify_growth: f64,
-    /// Most global registrations per merge (default 8); the other pairs waiting for one keep
-    /// their last verdict (or [`PairRejection::Pending`]) and the merge reports them as pending,
-    /// so the station merges again. Bounds a merge's time however large the fleet.
+    /// Most global registrations per round of estimation (default 8); the other pairs waiting
+    /// for one keep their last verdict (or [`PairRejection::Pending`]) and the round reports them
+    /// as pending, so another round follows. Bounds a round's time however large the fleet.
     pub max_searches: usize,
-    /// Most grown maps prepared again per merge, the most grown first (default 2, a map per core
-    /// of a small station: preparing is the costliest step of a merge); new maps and
+    /// Most grown maps prepared again per round, the most grown first (default 2, a map per core
+    /// of a small station: preparing is the costliest step of a round); new maps and
     /// maps whose shape changed are always prepared.
     pub max_refreshes: usize,
     /// How the free space the robots saw is checked ([`cloud::visibility`]; outdoor
@@ -426,7 +426,7 @@ pub struct PairReport {
 }
 
 impl PairReport {
-    /// True when the pair was never estimated: it waits for a global registration a later merge
+    /// True when the pair was never estimated: it waits for a global registration a later round
     /// will run.
     pub fn pending(&self) -> bool {
         matches!(self.verdict, PairVerdict::Rejected { reason: PairRejection::Pending, .. })
@@ -468,11 +468,11 @@ pub struct MergeReport {
     pub origins: Vec<usize>,
     /// Time per stage.
     pub timing: MergeTiming,
-    /// Work this merge left for the next one (pairs over [`MergeConfig::max_searches`], grown maps
-    /// over [`MergeConfig::max_refreshes`]): merge again even if nothing changes.
+    /// Work the last round left for the next one (pairs over [`MergeConfig::max_searches`], grown
+    /// maps over [`MergeConfig::max_refreshes`]): merge again even if nothing changes.
     pub pending: usize,
-    /// The merge settled ([`Merger::settle`]) and left nothing pending: exactly what a merge from
-    /// scratch of the current maps gives.
+    /// The last round settled ([`Merger::settle`]), left nothing pending, and no map changed since:
+    /// exactly what a merge from scratch of the current maps gives.
     pub settled: bool,
 }
 

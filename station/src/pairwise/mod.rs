@@ -6,7 +6,7 @@
 //! FPFH; [`Features::compute`]), then matching, RANSAC and a point-to-plane polish (steps 5-7;
 //! [`cloud::global::estimate()`]). What is about merging maps is here: [`confidence`] (in `cloud`,
 //! shared with the robots' loop closure) scores the result and decides whether it is reliable;
-//! [`align`] and [`register`] put the two together, and [`bench`] times them. The output transform maps SOURCE points into the TARGET frame; fine
+//! [`align`] and [`register`] put the two together, and [`bench`](mod@bench) times them. The output transform maps SOURCE points into the TARGET frame; fine
 //! registration (VGICP) is left to the caller.
 //!
 //! A station merging many maps computes each map's features once and calls [`align`] per pair;
