@@ -29,7 +29,7 @@ use rustc_hash::{FxHashMap, FxHashSet};
 use super::assembly::{Assembly, Placed};
 use super::graph::{self, Chained, GraphEdge};
 use super::places::Places;
-use super::round::{CachedPair, Compared, Preparation, RoundMap};
+use super::round::{CachedPair, Compared, Preparation, RoundMap, usable_pairs};
 pub use super::round::{MergerStats, Round, RoundTiming};
 use super::{
     MapReport, MapStatus, MergeConfig, MergeError, MergeReport, MergeTiming, PairRejection, PairReport, PairVerdict,
@@ -393,13 +393,11 @@ impl Merger {
     /// Every pair of usable maps with its verdict (positions renumbered to `ids`), marked fresh
     /// when the round applied last computed it and no merge has reported it yet.
     fn pair_reports(&mut self, ids: &[usize], prepared: &[Option<Arc<PreparedMap>>]) -> Vec<PairReport> {
-        let usable: Vec<usize> =
-            (0..ids.len()).filter(|&p| prepared[p].as_ref().is_some_and(|m| m.usable().is_some())).collect();
+        let usable = |p: usize| prepared[p].as_ref().is_some_and(|m| m.usable().is_some());
         let fresh = std::mem::take(&mut self.last.fresh);
         let pending = PairVerdict::Rejected { reason: PairRejection::Pending, best: None, best_transform: None };
-        usable
-            .iter()
-            .flat_map(|&a| usable.iter().filter(move |&&b| b > a).map(move |&b| (a, b)))
+        usable_pairs(ids.len(), usable)
+            .into_iter()
             .map(|(a, b)| {
                 let key = (ids[a], ids[b]);
                 let verdict = self.pairs.get(&key).map_or(&pending, |c| &c.verdict);

@@ -189,7 +189,7 @@ impl Round {
             return false;
         }
         let (ids, prepared) = self.current();
-        let all = usable_pairs(&prepared);
+        let all = usable_pairs(prepared.len(), |p| prepared[p].usable().is_some());
         all.iter().all(|&(a, b)| {
             let key = (ids[a], ids[b]);
             self.work(key, self.generations(key), (prepared[a].points, prepared[b].points)) == PairWork::Cached
@@ -289,7 +289,7 @@ impl Round {
     /// would only be done again.
     fn estimate_pairs(&mut self, deferred: &[usize]) -> (usize, Duration) {
         let (ids, prepared) = self.current();
-        let all = usable_pairs(&prepared);
+        let all = usable_pairs(prepared.len(), |p| prepared[p].usable().is_some());
         let key = |(a, b): (usize, usize)| (ids[a], ids[b]);
         let points = |(a, b): (usize, usize)| (prepared[a].points, prepared[b].points);
         let work: Vec<PairWork> = all.iter().map(|&p| self.work(key(p), self.generations(key(p)), points(p))).collect();
@@ -403,9 +403,9 @@ impl Round {
     }
 }
 
-/// Every pair (positions, `a < b`) of usable maps among `prepared`.
-pub(super) fn usable_pairs(prepared: &[Arc<PreparedMap>]) -> Positions {
-    let usable: Vec<usize> = (0..prepared.len()).filter(|&p| prepared[p].usable().is_some()).collect();
+/// Every pair (positions, `a < b`) of the maps at positions `0..n` that are `usable`.
+pub(super) fn usable_pairs(n: usize, usable: impl Fn(usize) -> bool) -> Positions {
+    let usable: Vec<usize> = (0..n).filter(|&p| usable(p)).collect();
     usable.iter().flat_map(|&a| usable.iter().filter(move |&&b| b > a).map(move |&b| (a, b))).collect()
 }
 
