@@ -1,10 +1,12 @@
 //! Global registration without an initial guess against ground truth: real KITTI scans (a reverse
 //! revisit, two scans 11 m apart, a scan onto a map of other scans), a scan turned by a large yaw
-//! onto itself, and bad input.
+//! onto itself, the next placement after one excluded (a place that appears twice), and bad input.
 
 use cloud::PointCloud;
 use cloud::formats::read_cloud;
-use cloud::global::{FeatureError, GlobalAlignment, GlobalConfig, GlobalError, Role, align};
+use cloud::global::{
+    FeatureError, Features, GlobalAlignment, GlobalConfig, GlobalError, Role, align, estimate, estimate_excluding,
+};
 use cloud::se3::{from_matrix, pose_error};
 use cloud::trajectory::Trajectory;
 use cloud::voxel::downsample;
@@ -141,4 +143,35 @@ fn features_keep_no_neighbourhood_lists() {
     // What the later steps use is all there.
     assert_eq!(features.surfels.points.len(), features.surfels.normals.len());
     assert_eq!(features.surfels.tree.len(), features.surfels.points.len());
+}
+
+#[test]
+fn excluding_a_placement_finds_the_other_copy_of_a_place() {
+    // The target holds the same scan twice, 200 m apart: two equally good placements of the
+    // source. The first estimate picks one; excluding it, the next picks the other.
+    let scan = kitti00(0);
+    let copy = pose_from_yaw_deg(0.0, [200.0, 0.0, 0.0]);
+    let mut target = scan.clone();
+    target.points.extend(moved(&scan, &copy).points);
+    let pose = pose_from_yaw_deg(90.0, [5.37, -3.11, 0.23]);
+    let source = moved(&scan, &pose);
+    let config = GlobalConfig::default();
+    let (s, t) = (Features::compute(&source, &config).unwrap(), Features::compute(&target, &config).unwrap());
+    let placements = [pose.inverse(), copy * pose.inverse()];
+    let close = |found: &Isometry3<f64>| {
+        placements.iter().position(|p| {
+            let e = pose_error(found, p);
+            e.translation_m < MAX_TRANSLATION_M && e.rotation_deg < MAX_ROTATION_DEG
+        })
+    };
+    let first = estimate(&s, &t, &config).unwrap();
+    let which = close(&first.transform).expect("the first estimate is one of the copies");
+    let margin = 3.0 * config.ransac.inlier_distance;
+    let next = estimate_excluding(&s, &t, &config, &[first.transform], margin).unwrap();
+    assert_eq!(close(&next.transform), Some(1 - which), "{:?}", next.transform);
+    assert!(next.inliers.len() >= 15, "{} inliers", next.inliers.len());
+    assert_eq!(next.matches, first.matches, "every correspondence still counts");
+    // Excluding both copies leaves nothing consistent to find.
+    let rest = estimate_excluding(&s, &t, &config, &[first.transform, next.transform], margin);
+    assert!(rest.is_err() || rest.as_ref().unwrap().inliers.len() < 15, "{:?}", rest.map(|r| r.inliers.len()));
 }

@@ -67,11 +67,28 @@ impl Estimate {
 
 /// Steps 5-7: the transform mapping `source` into the frame of `target`.
 pub fn estimate(source: &Features, target: &Features, config: &GlobalConfig) -> Result<Estimate, NoModel> {
+    estimate_excluding(source, target, config, &[], 0.0)
+}
+
+/// Steps 5-7 on the correspondences that disagree with every transform of `excluded` (the source
+/// keypoint lands farther than `margin` metres from its target keypoint): the next distinct
+/// hypothesis after those, when they were found wrong (sequential RANSAC). `matches` and the
+/// inlier ratio still count every correspondence, so that hypotheses are scored alike.
+pub fn estimate_excluding(
+    source: &Features,
+    target: &Features,
+    config: &GlobalConfig,
+    excluded: &[Isometry3<f64>],
+    margin: f64,
+) -> Result<Estimate, NoModel> {
     let mut timing = EstimateTiming::default();
     let mut watch = Stopwatch::start();
     let matches = matching::reciprocal_matches(&source.descriptors, &target.descriptors, config.matching.k);
     timing.matching = watch.lap();
     let (src, tgt) = keypoint_pairs(source, target, &matches);
+    let kept: Vec<usize> =
+        (0..matches.len()).filter(|&i| excluded.iter().all(|e| (e * src[i] - tgt[i]).norm() > margin)).collect();
+    let (src, tgt): (Vec<Point3<f64>>, Vec<Point3<f64>>) = kept.iter().map(|&i| (src[i], tgt[i])).unzip();
     let model = ransac::ransac(&src, &tgt, &config.ransac);
     timing.ransac = watch.lap();
     let model = model.ok_or(NoModel { correspondences: matches.len() })?;
@@ -80,8 +97,8 @@ pub fn estimate(source: &Features, target: &Features, config: &GlobalConfig) -> 
     Ok(Estimate {
         transform,
         coarse_transform: model.transform,
+        inliers: model.inliers.iter().map(|&k| kept[k]).collect(),
         matches,
-        inliers: model.inliers,
         ransac_iterations: model.iterations,
         timing,
     })

@@ -40,7 +40,7 @@ use crate::PointCloud;
 
 pub use config::GlobalConfig;
 pub use error::FeatureError;
-pub use estimate::{Estimate, EstimateTiming, NoModel, estimate};
+pub use estimate::{Estimate, EstimateTiming, NoModel, estimate, estimate_excluding};
 pub use features::{FeatureTiming, Features};
 pub use fpfh::{Fpfh, FpfhConfig};
 pub use harris::HarrisConfig;

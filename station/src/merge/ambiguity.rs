@@ -25,7 +25,7 @@ use cloud::global::{Features, Surfels, matching, polish, ransac};
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
-use crate::pairwise::PairwiseConfig;
+use crate::pairwise::{EXCLUSION, PairwiseConfig};
 
 /// The strongest hypothesis distinct from the chosen one.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -38,10 +38,6 @@ pub struct RunnerUp {
     pub upright_support: f64,
 }
 
-/// Correspondences farther than this many RANSAC inlier distances from the chosen model count as
-/// disagreeing with it (the margin keeps near-inliers of the chosen model out of the rerun).
-const EXCLUSION: f64 = 3.0;
-
 /// A surfel is upright when the vertical component of its unit normal is below this (the normal
 /// is within 60° of horizontal: walls, rack faces, pillars; ground-robot maps are levelled to a
 /// few degrees, even on rolling ground).
@@ -51,21 +47,24 @@ const UPRIGHT: f32 = 0.5;
 /// magnitude (37°: normals of the same wall fitted in two maps differ by a few degrees).
 const PARALLEL: f32 = 0.8;
 
-/// The best RANSAC model on the correspondences that disagree with `chosen`, if one exists and lies
-/// at least `min_distance` metres from `chosen` (at the source keypoints).
+/// The best RANSAC model on the correspondences that disagree with `chosen` and with every
+/// transform of `refuted` (placements the free space showed wrong: no alternative), if one exists
+/// and lies at least `min_distance` metres from `chosen` (at the source keypoints).
 pub fn runner_up(
     source: &Features,
     target: &Features,
-    chosen: &Isometry3<f64>,
+    (chosen, refuted): (&Isometry3<f64>, &[Isometry3<f64>]),
     min_distance: f64,
     config: &PairwiseConfig,
 ) -> Option<RunnerUp> {
     let matches = matching::reciprocal_matches(&source.descriptors, &target.descriptors, config.global.matching.k);
     let limit = EXCLUSION * config.global.ransac.inlier_distance;
+    let disagrees =
+        |s: &Point3<f64>, t: &Point3<f64>| std::iter::once(chosen).chain(refuted).all(|e| (e * s - t).norm() > limit);
     let (src, tgt): (Vec<Point3<f64>>, Vec<Point3<f64>>) = matches
         .iter()
         .map(|c| (source.keypoint(c.source).cast::<f64>(), target.keypoint(c.target).cast::<f64>()))
-        .filter(|(s, t)| (chosen * s - t).norm() > limit)
+        .filter(|(s, t)| disagrees(s, t))
         .unzip();
     let model = ransac::ransac(&src, &tgt, &config.global.ransac)?;
     let keypoints = source.keypoint_positions();

@@ -11,7 +11,8 @@ use rayon::prelude::*;
 use super::ambiguity::{RunnerUp, mean_displacement, runner_up, upright_support};
 use super::{MergeConfig, PreparedMap};
 use crate::pairwise::{
-    self, Confidence, Features, PairwiseConfig, PairwiseOutcome, PairwiseResult, Rejection, confidence,
+    self, Confidence, ConfidenceConfig, Features, PairwiseConfig, PairwiseOutcome, PairwiseResult, Rejection,
+    confidence,
 };
 
 /// An accepted edge of the match graph between maps `a` and `b`.
@@ -135,29 +136,99 @@ struct Scale<'a> {
     ambiguity_distance: f64,
 }
 
+/// A placement global registration proposes, with the features it was found on.
+struct Hypothesis<'a> {
+    scale: Scale<'a>,
+    global: PairwiseResult,
+    /// Found on [`MergeConfig::coarse`]'s features.
+    coarse: bool,
+    /// Short of the pairwise inliers ([`near_miss`]).
+    near_miss: bool,
+}
+
 /// Estimates the transform mapping map `b` (source) into map `a` (target), both usable.
+///
+/// When the free space the robots saw contradicts the best placement (a look-alike place: two
+/// halls of the same racks), RANSAC runs again on the correspondences that disagree with it, and
+/// the next distinct placement is judged with every check, up to
+/// [`MergeConfig::max_alternatives`] times. Robots that share only what they saw through a door
+/// have their own hall's look-alike as the best-supported placement; the true one comes next.
 pub fn estimate_pair(
     (a, map_a): (usize, &PreparedMap),
     (b, map_b): (usize, &PreparedMap),
     config: &MergeConfig,
 ) -> PairVerdict {
+    let mut refuted = Vec::new();
+    let first = match hypothesis((map_a, map_b), config, &refuted) {
+        Ok(h) => h,
+        Err(rejected) => return *rejected,
+    };
+    let seen = map_a.views.is_some() && map_b.views.is_some();
+    let mut last = first.global.transform;
+    let verdict = judge((a, map_a), (b, map_b), first, &refuted, config);
+    let mut contradicted = is_contradicted(&verdict);
+    while seen && contradicted && refuted.len() < config.max_alternatives {
+        refuted.push(last);
+        let Ok(next) = hypothesis((map_a, map_b), config, &refuted) else { break };
+        last = next.global.transform;
+        let alternative = judge((a, map_a), (b, map_b), next, &refuted, config);
+        if alternative.edge().is_some() {
+            return alternative;
+        }
+        contradicted = is_contradicted(&alternative);
+    }
+    verdict
+}
+
+fn is_contradicted(verdict: &PairVerdict) -> bool {
+    matches!(verdict, PairVerdict::Rejected { reason: PairRejection::Contradicted { .. }, .. })
+}
+
+/// The best placement of map `b` (source) into map `a` (target) whose correspondences disagree
+/// with every `refuted` one: the fine features', else the coarse ones', else the fine ones' near
+/// miss; the refusal of the fine features otherwise.
+fn hypothesis<'a>(
+    (map_a, map_b): (&'a PreparedMap, &'a PreparedMap),
+    config: &'a MergeConfig,
+    refuted: &[Isometry3<f64>],
+) -> Result<Hypothesis<'a>, Box<PairVerdict>> {
     let (Some(target), Some(source)) = (map_a.usable(), map_b.usable()) else {
-        return PairVerdict::Rejected { reason: PairRejection::Unusable, best: None, best_transform: None };
+        return Err(Box::new(PairVerdict::Rejected {
+            reason: PairRejection::Unusable,
+            best: None,
+            best_transform: None,
+        }));
     };
     let fine = Scale { source, target, config: &config.pairwise, ambiguity_distance: config.ambiguity_distance };
-    let (scale, global, coarse) = match pairwise::align(source, target, &config.pairwise) {
-        PairwiseOutcome::Aligned(r) => (fine, *r, false),
-        PairwiseOutcome::NotAligned { reason, best } => match coarse_alignment(map_b, map_a, config) {
-            Some((scale, found)) => (scale, found, true),
-            None => {
-                return PairVerdict::Rejected {
-                    reason: PairRejection::Pairwise(reason),
-                    best: best.as_ref().map(|r| r.confidence),
-                    best_transform: best.map(|r| r.transform),
-                };
-            }
-        },
+    let (reason, best) = match pairwise::align_excluding(source, target, &config.pairwise, refuted) {
+        PairwiseOutcome::Aligned(r) => {
+            return Ok(Hypothesis { scale: fine, global: *r, coarse: false, near_miss: false });
+        }
+        PairwiseOutcome::NotAligned { reason, best } => (reason, best),
     };
+    if let Some((scale, found)) = coarse_alignment(map_b, map_a, config, refuted) {
+        return Ok(Hypothesis { scale, global: found, coarse: true, near_miss: false });
+    }
+    if let Some(found) = near_miss(&reason, best.as_deref(), (map_b, map_a), config) {
+        return Ok(Hypothesis { scale: fine, global: found, coarse: false, near_miss: true });
+    }
+    Err(Box::new(PairVerdict::Rejected {
+        reason: PairRejection::Pairwise(reason),
+        best: best.as_ref().map(|r| r.confidence),
+        best_transform: best.map(|r| r.transform),
+    }))
+}
+
+/// Refines a hypothesis and judges it: confidence, free space, ambiguity (against alternatives
+/// other than the `refuted` placements).
+fn judge(
+    (a, map_a): (usize, &PreparedMap),
+    (b, map_b): (usize, &PreparedMap),
+    hypothesis: Hypothesis<'_>,
+    refuted: &[Isometry3<f64>],
+    config: &MergeConfig,
+) -> PairVerdict {
+    let Hypothesis { scale, global, coarse, near_miss } = hypothesis;
     let score_at = |t: &Isometry3<f64>| {
         confidence::confidence(
             &scale.source.surfels.points,
@@ -176,8 +247,9 @@ pub fn estimate_pair(
         return reject(PairRejection::LowConfidence { score: scores.score, needed: config.min_confidence });
     }
     let acceptance = free_space_acceptance(map_b, map_a, &transform, config);
-    if let Some(a) = acceptance.filter(|a| a.index() < config.min_acceptance) {
-        return reject(PairRejection::Contradicted { acceptance: a, needed: config.min_acceptance });
+    let needed = if near_miss { config.near_miss_acceptance } else { config.min_acceptance };
+    if let Some(a) = acceptance.filter(|a| a.index() < needed) {
+        return reject(PairRejection::Contradicted { acceptance: a, needed });
     }
     let inliers = global.inliers.len();
     let support = upright_support(
@@ -186,7 +258,26 @@ pub fn estimate_pair(
         &transform,
         scale.config.confidence.overlap_distance,
     );
-    let alternative = runner_up(scale.source, scale.target, &transform, scale.ambiguity_distance, scale.config);
+    // An alternative the free space contradicts is a look-alike, not a second answer: the next one
+    // is looked for instead, as for the chosen placement. Only when the free space clearly tells
+    // the two apart (the chosen placement fits what both robots saw as a near miss must): in halls
+    // of identical racks a look-alike and the chosen placement fare alike, and the ambiguity
+    // is the only guard.
+    let clean = acceptance.is_some_and(|a| a.index() >= config.near_miss_acceptance);
+    let (mut refuted, mut looked) = (refuted.to_vec(), 0);
+    let alternative = loop {
+        looked += 1;
+        let found =
+            runner_up(scale.source, scale.target, (&transform, &refuted), scale.ambiguity_distance, scale.config);
+        let strong = found.filter(|r| ambiguity(r, inliers, support) > config.max_ambiguity);
+        let seen_wrong = |r: &RunnerUp| {
+            free_space_acceptance(map_b, map_a, &r.transform, config).is_some_and(|a| a.index() < config.min_acceptance)
+        };
+        match strong {
+            Some(r) if clean && looked <= config.max_alternatives && seen_wrong(&r) => refuted.push(r.transform),
+            _ => break found,
+        }
+    };
     let ambiguity = alternative.map_or(0.0, |r| ambiguity(&r, inliers, support));
     if let Some(r) = alternative.filter(|_| ambiguity > config.max_ambiguity) {
         let away = mean_displacement(&scale.source.keypoint_positions(), &transform, &r.transform);
@@ -207,6 +298,23 @@ pub fn estimate_pair(
         ambiguity,
         acceptance,
     })
+}
+
+/// The best hypothesis of a global registration refused only for its RANSAC inliers, when it has
+/// at least [`MergeConfig::near_miss_inliers`], passes the pairwise overlap and score checks, and
+/// both maps have views to judge it by ([`MergeConfig::near_miss_acceptance`], in the caller).
+fn near_miss(
+    reason: &Rejection,
+    best: Option<&PairwiseResult>,
+    (source, target): (&PreparedMap, &PreparedMap),
+    config: &MergeConfig,
+) -> Option<PairwiseResult> {
+    let short = matches!(reason, Rejection::TooFewInliers { inliers, .. }
+        if config.near_miss_inliers > 0 && *inliers >= config.near_miss_inliers);
+    let seen = source.views.is_some() && target.views.is_some();
+    let best = best.filter(|_| short && seen)?;
+    let relaxed = ConfidenceConfig { min_inliers: config.near_miss_inliers, ..config.pairwise.confidence };
+    pairwise::accept(best.clone(), &relaxed).aligned().cloned()
 }
 
 /// Birk & Carpin's acceptance of `transform` (maps `source` into `target`): each map's surfels
@@ -240,10 +348,43 @@ fn free_space_acceptance(
 /// [`MergeConfig::ambiguity_distance`] away, beyond the refinement's reach, and the previous
 /// transform passed the ambiguity test.
 pub fn track_pair(
+    a: (usize, &PreparedMap),
+    b: (usize, &PreparedMap),
+    previous: &Edge,
+    config: &MergeConfig,
+) -> Option<Edge> {
+    follow(a, b, previous, config, Follow::Track)
+}
+
+/// Keeps a link that a new search of its pair did not find again (RANSAC drew worse on the grown
+/// maps): the previous transform, refined by VGICP where that converges nearby and gains, kept when
+/// it still scores [`MergeConfig::min_confidence`] with the previous global registration's inlier
+/// ratio and, for maps with views, still fits what the robots saw ([`MergeConfig::min_acceptance`]).
+pub fn keep_link(
+    a: (usize, &PreparedMap),
+    b: (usize, &PreparedMap),
+    previous: &Edge,
+    config: &MergeConfig,
+) -> Option<Edge> {
+    follow(a, b, previous, config, Follow::Keep)
+}
+
+/// How a link is followed from its previous transform.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Follow {
+    /// [`track_pair`]: the refinement must gain, or the link is lost.
+    Track,
+    /// [`keep_link`]: the previous transform stands where the refinement does not gain; the free
+    /// space is checked again.
+    Keep,
+}
+
+fn follow(
     (a, map_a): (usize, &PreparedMap),
     (b, map_b): (usize, &PreparedMap),
     previous: &Edge,
     config: &MergeConfig,
+    how: Follow,
 ) -> Option<Edge> {
     let (target, source) = if previous.coarse {
         (map_a.usable_coarse()?, map_b.usable_coarse()?)
@@ -251,7 +392,8 @@ pub fn track_pair(
         (map_a.usable()?, map_b.usable()?)
     };
     let scoring = if previous.coarse { config.coarse.as_ref()? } else { &config.pairwise };
-    let refined = refine(map_b, map_a, &previous.transform, config)?;
+    let refined = refine(map_b, map_a, &previous.transform, config);
+    let refined = if how == Follow::Track { refined? } else { refined.unwrap_or(previous.transform) };
     let transform = finish(map_b, map_a, &refined, config).unwrap_or(refined);
     let scores = confidence::confidence(
         &source.surfels.points,
@@ -260,13 +402,19 @@ pub fn track_pair(
         previous.inlier_ratio,
         &scoring.confidence,
     );
-    (scores.score >= config.min_confidence).then(|| Edge {
+    let acceptance = match how {
+        Follow::Track => previous.acceptance,
+        Follow::Keep => free_space_acceptance(map_b, map_a, &transform, config),
+    };
+    let fits = acceptance.is_none_or(|a| a.index() >= config.min_acceptance) || how == Follow::Track;
+    (scores.score >= config.min_confidence && fits).then(|| Edge {
         a,
         b,
         transform,
         refined: true,
         confidence: scores,
         tracked: true,
+        acceptance,
         ..previous.clone()
     })
 }
@@ -276,10 +424,12 @@ fn coarse_alignment<'a>(
     source: &'a PreparedMap,
     target: &'a PreparedMap,
     config: &'a MergeConfig,
+    refuted: &[Isometry3<f64>],
 ) -> Option<(Scale<'a>, PairwiseResult)> {
     let coarse = config.coarse.as_ref()?;
     let (coarse_source, coarse_target) = (source.usable_coarse()?, target.usable_coarse()?);
-    let PairwiseOutcome::Aligned(mut result) = pairwise::align(coarse_source, coarse_target, coarse) else {
+    let PairwiseOutcome::Aligned(mut result) = pairwise::align_excluding(coarse_source, coarse_target, coarse, refuted)
+    else {
         return None;
     };
     // The coarse polish leaves a decimetre; the fine surfels bring it within VGICP's reach.

@@ -202,7 +202,8 @@ impl Merger {
     /// tracked, is searched again with every check (still at most [`MergeConfig::max_refreshes`]
     /// maps and [`MergeConfig::max_searches`] searches per round; the report's `pending` says
     /// when more settling merges are needed). A fleet at rest thus gets the placements a
-    /// from-scratch merge of its final maps would give.
+    /// from-scratch merge of its final maps would give, except that a link the new search does
+    /// not find again is kept when it still passes its checks ([`super::keep_link`]).
     pub fn settle(&mut self) {
         self.settling = true;
     }

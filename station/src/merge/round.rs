@@ -19,7 +19,7 @@ use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};
 
 use super::places::{Places, Since};
-use super::{MergeConfig, PairRejection, PairVerdict, PreparedMap, estimate_pair, track_pair};
+use super::{MergeConfig, PairRejection, PairVerdict, PreparedMap, estimate_pair, keep_link, track_pair};
 
 /// A map's preparation and what it was made from.
 #[derive(Clone)]
@@ -39,6 +39,8 @@ pub(super) struct CachedPair {
     pub searched_at: (usize, usize),
     /// Round of the last global registration: the longest-waiting pair is searched first.
     pub searched_in: u64,
+    /// Generations of the two maps' preparations when the last global registration ran.
+    pub searched_with: (u64, u64),
 }
 
 /// How far two maps' places were compared.
@@ -265,7 +267,9 @@ impl Round {
     /// What pair `(ida, idb)` needs, given the maps' current generations.
     fn work(&self, (ida, idb): (usize, usize), generations: (u64, u64), points: (usize, usize)) -> PairWork {
         let Some(cached) = self.pairs.get(&(ida, idb)) else { return PairWork::Search };
-        let tracked = cached.verdict.edge().is_some_and(|e| e.tracked);
+        // A tracked link is searched again when settling, unless this very preparation was searched
+        // and the link kept by tracking after all (see `estimate_pairs`).
+        let tracked = cached.verdict.edge().is_some_and(|e| e.tracked) && cached.searched_with != generations;
         if self.settling && (cached.generations != generations || tracked) {
             return PairWork::Search;
         }
@@ -332,6 +336,7 @@ impl Round {
                 verdict,
                 searched_at: before.map_or(points(p), |c| c.searched_at),
                 searched_in: before.map_or(0, |c| c.searched_in),
+                searched_with: before.map_or((0, 0), |c| c.searched_with),
             };
             self.pairs.insert(key(p), pair);
             self.stats.unmatched += 1;
@@ -339,15 +344,36 @@ impl Round {
         }
         let config = &self.config;
         let over_budget = searches.split_off(searches.len().min(config.max_searches));
-        let found: Vec<PairVerdict> =
-            searches.par_iter().map(|&(a, b)| estimate_pair((a, &prepared[a]), (b, &prepared[b]), config)).collect();
+        // A linked pair searched again (grown past `reverify_growth`, or settling) keeps its link by
+        // tracking it when the search finds none: RANSAC is seeded by the maps, and a grown map can
+        // draw a worse sample; one unlucky draw must not unmerge a robot whose link passed every
+        // check. Not for a pair whose tracking was just lost.
+        let previous = |p: (usize, usize)| {
+            let lost = tracks.contains(&p);
+            self.pairs.get(&key(p)).and_then(|c| c.verdict.edge()).filter(|_| !lost)
+        };
+        let found: Vec<(PairVerdict, bool)> = searches
+            .par_iter()
+            .map(|&(a, b)| {
+                let searched = estimate_pair((a, &prepared[a]), (b, &prepared[b]), config);
+                let kept = match (&searched, previous((a, b))) {
+                    (PairVerdict::Rejected { .. }, Some(edge)) => {
+                        keep_link((a, &prepared[a]), (b, &prepared[b]), edge, config)
+                    }
+                    _ => None,
+                };
+                kept.map_or((searched, false), |edge| (PairVerdict::Edge(edge), true))
+            })
+            .collect();
         self.stats.pair_estimates += searches.len();
-        for (&p, verdict) in searches.iter().zip(found) {
+        for (&p, (verdict, kept)) in searches.iter().zip(found) {
+            self.stats.tracked += usize::from(kept);
             let pair = CachedPair {
                 generations: self.generations(key(p)),
                 verdict,
                 searched_at: points(p),
                 searched_in: self.number,
+                searched_with: self.generations(key(p)),
             };
             self.pairs.insert(key(p), pair);
             self.done.insert(key(p));

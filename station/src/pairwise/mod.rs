@@ -20,7 +20,7 @@ pub use cloud::confidence;
 use std::time::Duration;
 
 use cloud::PointCloud;
-use cloud::global::{EstimateTiming, NoModel, estimate};
+use cloud::global::{EstimateTiming, NoModel, estimate_excluding};
 use cloud::stopwatch::{Stopwatch, timed};
 use nalgebra::{Isometry3, Point3};
 
@@ -219,7 +219,23 @@ pub fn register(
 
 /// Steps 5-7 and the scores for two maps' features (`total` timing: features plus this call).
 pub fn align(source: &Features, target: &Features, config: &PairwiseConfig) -> PairwiseOutcome {
-    let found = match estimate(source, target, &config.global) {
+    align_excluding(source, target, config, &[])
+}
+
+/// Correspondences farther than this many RANSAC inlier distances from a transform count as
+/// disagreeing with it (the margin keeps its near-inliers out of a search for another).
+pub const EXCLUSION: f64 = 3.0;
+
+/// [`align`] on the correspondences that disagree with every transform of `excluded` (beyond
+/// [`EXCLUSION`] inlier distances): the next distinct hypothesis after transforms found wrong.
+pub fn align_excluding(
+    source: &Features,
+    target: &Features,
+    config: &PairwiseConfig,
+    excluded: &[Isometry3<f64>],
+) -> PairwiseOutcome {
+    let margin = EXCLUSION * config.global.ransac.inlier_distance;
+    let found = match estimate_excluding(source, target, &config.global, excluded, margin) {
         Ok(found) => found,
         Err(NoModel { correspondences }) => {
             return PairwiseOutcome::NotAligned { reason: Rejection::NoModel { correspondences }, best: None };
@@ -257,7 +273,7 @@ impl StepTiming {
 }
 
 /// The outcome of the reliability checks on a result.
-fn accept(result: PairwiseResult, config: &ConfidenceConfig) -> PairwiseOutcome {
+pub(crate) fn accept(result: PairwiseResult, config: &ConfidenceConfig) -> PairwiseOutcome {
     let reason = if result.inliers.len() < config.min_inliers {
         Rejection::TooFewInliers { inliers: result.inliers.len(), needed: config.min_inliers }
     } else if result.confidence.overlap < config.min_overlap {
