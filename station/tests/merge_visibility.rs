@@ -267,8 +267,8 @@ fn robots_sharing_only_a_door_are_found_past_the_look_alike_hall() {
         }
     }
     assert!(found > found_blind, "the door was found {found} times, {found_blind} without the alternatives");
-    // As a station merges them while they drive: RANSAC draws the door's 15-25 inliers among
-    // thousands of correspondences in some rounds only; once found the link is tracked, and kept
+    // As a station merges them while they drive: the door's 15-25 inliers among thousands of
+    // correspondences are there in some rounds only; once found the link is tracked, and kept
     // when a later search draws worse (the settling search after the last growth does).
     let (worst, _, settled) = drive_and_settle(&fleet, total / 8, &config);
     assert!(worst.0 < bar_m && worst.1 < bar_deg, "a placement {:.3} m / {:.2} deg off the truth", worst.0, worst.1);
