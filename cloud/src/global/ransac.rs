@@ -236,19 +236,26 @@ fn edge_consistent(source: &[Point3<f64>], target: &[Point3<f64>], i: usize, j: 
 /// Inlier count and squared-residual sum of a transform.
 fn score(source: &[Point3<f64>], target: &[Point3<f64>], t: &Isometry3<f64>, inlier_distance: f64) -> Hypothesis {
     let limit = inlier_distance * inlier_distance;
+    let (inliers, sse) = squared_residuals(source, target, t)
+        .fold((0, 0.0), |(count, sse), r| if r <= limit { (count + 1, sse + r) } else { (count, sse) });
+    Hypothesis { inliers, sse, transform: *t }
+}
+
+/// Each pair's squared distance after `t`: what scoring and the refit both count inliers by.
+fn squared_residuals<'a>(
+    source: &'a [Point3<f64>],
+    target: &'a [Point3<f64>],
+    t: &Isometry3<f64>,
+) -> impl Iterator<Item = f64> + 'a {
     // A matrix applies faster than the unit quaternion, and every hypothesis visits every pair.
     let (rotation, translation) = (t.rotation.to_rotation_matrix().into_inner(), t.translation.vector);
-    let (inliers, sse) = source.iter().zip(target).fold((0, 0.0), |(count, sse), (s, q)| {
-        let r = (rotation * s.coords + translation - q.coords).norm_squared();
-        if r <= limit { (count + 1, sse + r) } else { (count, sse) }
-    });
-    Hypothesis { inliers, sse, transform: *t }
+    source.iter().zip(target).map(move |(s, q)| (rotation * s.coords + translation - q.coords).norm_squared())
 }
 
 /// Indices of the inliers of `t`.
 fn inliers_of(source: &[Point3<f64>], target: &[Point3<f64>], t: &Isometry3<f64>, inlier_distance: f64) -> Vec<usize> {
     let limit = inlier_distance * inlier_distance;
-    (0..source.len()).filter(|&i| (t * source[i] - target[i]).norm_squared() <= limit).collect()
+    squared_residuals(source, target, t).enumerate().filter(|&(_, r)| r <= limit).map(|(i, _)| i).collect()
 }
 
 /// Umeyama on all inliers, repeated until the inlier set is stable (at most 10 rounds).
