@@ -5,7 +5,7 @@ use cloud::global::polish;
 use cloud::registration::{GaussianCloud, Method, Target, align_gaussians};
 use cloud::se3::pose_error;
 use cloud::visibility::{Acceptance, acceptance};
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
 use super::ambiguity::{RunnerUp, mean_displacement, runner_up, upright_support};
@@ -83,6 +83,15 @@ pub enum PairRejection {
         acceptance: Acceptance,
         /// [`MergeConfig::min_acceptance`].
         needed: f64,
+    },
+    /// The placement tilts one map's vertical away from the other's by more than
+    /// [`MergeConfig::max_tilt_deg`]: a map on its side or upside down is a look-alike.
+    #[error("tilts one map by {tilt_deg:.0} deg against the other, at most {max_deg:.0}")]
+    Tilted {
+        /// Angle between the two maps' verticals, degrees.
+        tilt_deg: f64,
+        /// [`MergeConfig::max_tilt_deg`].
+        max_deg: f64,
     },
     /// A distinct transform has nearly as much support: repetitive structure, no unique answer.
     #[error(
@@ -180,8 +189,19 @@ pub fn estimate_pair(
     verdict
 }
 
+/// True when what the robots saw refutes the verdict's placement: the free space, or the
+/// vertical both share.
 fn is_contradicted(verdict: &PairVerdict) -> bool {
-    matches!(verdict, PairVerdict::Rejected { reason: PairRejection::Contradicted { .. }, .. })
+    matches!(
+        verdict,
+        PairVerdict::Rejected { reason: PairRejection::Contradicted { .. } | PairRejection::Tilted { .. }, .. }
+    )
+}
+
+/// The angle between the vertical of the frame `transform` maps from and that of the frame it
+/// maps into, degrees.
+pub fn tilt_deg(transform: &Isometry3<f64>) -> f64 {
+    (transform.rotation * Vector3::z()).z.clamp(-1.0, 1.0).acos().to_degrees()
 }
 
 /// The best placement of map `b` (source) into map `a` (target) whose correspondences disagree
@@ -243,6 +263,10 @@ fn judge(
     let transform = finish(map_b, map_a, &transform, config).unwrap_or(transform);
     let scores = score_at(&transform);
     let reject = |reason| PairVerdict::Rejected { reason, best: Some(scores), best_transform: Some(transform) };
+    let tilt = tilt_deg(&transform);
+    if tilt > config.max_tilt_deg {
+        return reject(PairRejection::Tilted { tilt_deg: tilt, max_deg: config.max_tilt_deg });
+    }
     if scores.score < config.min_confidence {
         return reject(PairRejection::LowConfidence { score: scores.score, needed: config.min_confidence });
     }
@@ -265,6 +289,7 @@ fn judge(
     // is the only guard.
     let clean = acceptance.is_some_and(|a| a.index() >= config.near_miss_acceptance);
     let (mut refuted, mut looked) = (refuted.to_vec(), 0);
+    let tilted = |r: &RunnerUp| tilt_deg(&r.transform) > config.max_tilt_deg;
     let alternative = loop {
         looked += 1;
         let found =
@@ -273,9 +298,12 @@ fn judge(
         let seen_wrong = |r: &RunnerUp| {
             free_space_acceptance(map_b, map_a, &r.transform, config).is_some_and(|a| a.index() < config.min_acceptance)
         };
+        // A tilted alternative is no second answer, whatever the chosen placement's fit.
         match strong {
-            Some(r) if clean && looked <= config.max_alternatives && seen_wrong(&r) => refuted.push(r.transform),
-            _ => break found,
+            Some(r) if looked <= config.max_alternatives && (tilted(&r) || clean && seen_wrong(&r)) => {
+                refuted.push(r.transform)
+            }
+            _ => break found.filter(|r| !tilted(r)),
         }
     };
     let ambiguity = alternative.map_or(0.0, |r| ambiguity(&r, inliers, support));

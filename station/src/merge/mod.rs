@@ -216,6 +216,17 @@ pub struct MergeConfig {
     /// up to this many (default 2; 0 turns it off). Only for maps with views. Each costs a RANSAC,
     /// a refinement and the checks, a fraction of the maps' features.
     pub max_alternatives: usize,
+    /// Largest tilt of a placement, degrees: the angle between one map's vertical and the
+    /// other's (default 30; 180 turns the check off). The robots' frames are their sensors' at
+    /// their first sweeps, upright on ground robots to within the slope they started on and
+    /// the mount: a placement that turns one map on its side or upside down is a look-alike.
+    /// The free space cannot refute one: a map turned upside down about the ground lies below
+    /// the other's ground, where no ray went. Measured: two young campus streets matched so
+    /// (roll 180 deg about the ground, 20 inliers, every sampled surfel agreeing) and the
+    /// station published a robot 153 m / 180 deg off; true placements of the simulated fleets
+    /// tilt by at most a few degrees. Set it to 180 for fleets whose sensors are not mounted
+    /// upright (handheld, aerial).
+    pub max_tilt_deg: f64,
     /// How the maps' place descriptors are compared for candidate overlaps (default
     /// [`PlaceConfig::default`]). Used only for maps given their places ([`Merger::set_places`]).
     pub places: PlaceConfig,
@@ -267,6 +278,7 @@ impl MergeConfig {
             near_miss_inliers: 10,
             near_miss_acceptance: 0.97,
             max_alternatives: 2,
+            max_tilt_deg: 30.0,
             places: PlaceConfig::default(),
         }
     }
@@ -324,13 +336,14 @@ impl MergeConfig {
             && (0.0..=1.0).contains(&self.min_acceptance)
             && (0.0..=1.0).contains(&self.near_miss_acceptance)
             && self.acceptance_samples > 0
+            && positive(self.max_tilt_deg)
             && self.places.candidates > 0
             && (0.0..=1.0).contains(&self.places.max_distance)
             && positive(self.refine.voxel_resolution)
             && positive(self.refine.max_correspondence_distance);
         if !ok {
             return Err(MergeError::Config(FeatureError::InvalidConfig(
-                "merge voxels, refinement limits, growth shares, max_searches, place candidates and min_confidence must be positive and finite, min_acceptance, near_miss_acceptance and the place max_distance within [0, 1]",
+                "merge voxels, refinement limits, growth shares, max_searches, max_tilt_deg, place candidates and min_confidence must be positive and finite, min_acceptance, near_miss_acceptance and the place max_distance within [0, 1]",
             )));
         }
         Ok(())
