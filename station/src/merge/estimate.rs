@@ -200,7 +200,7 @@ fn is_contradicted(verdict: &PairVerdict) -> bool {
 
 /// The angle between the vertical of the frame `transform` maps from and that of the frame it
 /// maps into, degrees.
-pub fn tilt_deg(transform: &Isometry3<f64>) -> f64 {
+fn tilt_deg(transform: &Isometry3<f64>) -> f64 {
     (transform.rotation * Vector3::z()).z.clamp(-1.0, 1.0).acos().to_degrees()
 }
 
