@@ -17,7 +17,7 @@ use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
 use crate::global::FeatureError;
-use crate::kdtree::KdTree;
+use crate::kdtree::{KdTree, gate_radius};
 
 /// Settings of the confidence scores and of the acceptance test.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -86,12 +86,14 @@ pub fn confidence(
     let t = transform.cast::<f32>();
     let max_sq = config.max_correspondence_distance.powi(2);
     let overlap_sq = config.overlap_distance.powi(2);
+    // Nothing farther than both distances counts: the search need not look farther.
+    let reach = gate_radius(config.max_correspondence_distance.max(config.overlap_distance));
     // Per point: (d² if within the fitness cut-off, overlapping?).
     let (sum, count, overlapping) = source
         .par_iter()
         .map(|p| {
             let q = t * p;
-            let Some(nn) = target.nearest(&[q.x, q.y, q.z]) else { return (0.0, 0, 0) };
+            let Some(nn) = target.nearest_within(&[q.x, q.y, q.z], reach) else { return (0.0, 0, 0) };
             let within = nn.dist_sq <= max_sq;
             (
                 if within { f64::from(nn.dist_sq) } else { 0.0 },

@@ -37,6 +37,7 @@ use nalgebra::Isometry3;
 use rayon::prelude::*;
 
 use crate::PointCloud;
+use crate::kdtree::gate_radius;
 
 pub use config::GlobalConfig;
 pub use error::FeatureError;
@@ -156,7 +157,11 @@ fn fitness(source: &Surfels, target: &Surfels, transform: &Isometry3<f64>, gate:
         .par_iter()
         .filter_map(|p| {
             let q = t * p;
-            target.tree.nearest(&[q.x, q.y, q.z]).map(|n| n.dist_sq).filter(|&d| d <= gate * gate)
+            target
+                .tree
+                .nearest_within(&[q.x, q.y, q.z], gate_radius(gate))
+                .map(|n| n.dist_sq)
+                .filter(|&d| d <= gate * gate)
         })
         .collect();
     if close.is_empty() {

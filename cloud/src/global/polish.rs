@@ -16,6 +16,7 @@ use super::normals::Surfels;
 use crate::gauss_newton::{
     BLOCK, Factor, NormalEquations, SignedDistance, SignedDistanceFactor, solve_damped, sum_blocks,
 };
+use crate::kdtree::gate_radius;
 use crate::se3;
 
 /// Settings of step 7.
@@ -78,7 +79,7 @@ fn gauss_newton_step(
         let mut eq = NormalEquations::zero();
         for source in block {
             let pf = (transform * source).cast::<f32>();
-            let Some(nn) = target.tree.nearest(&[pf.x, pf.y, pf.z]) else { continue };
+            let Some(nn) = target.tree.nearest_within(&[pf.x, pf.y, pf.z], gate_radius(max_distance)) else { continue };
             if nn.dist_sq > gate || !target.has_normal(nn.index) {
                 continue;
             }

@@ -3,7 +3,7 @@
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
 use super::covariance::estimate_covariances_with;
-use crate::kdtree::KdTree;
+use crate::kdtree::{KdTree, gate_radius};
 use crate::memory::{HeapSize, vec_bytes};
 
 /// A set of Gaussians (mean, covariance) with a nearest-neighbour search: a point cloud with a k-d
@@ -93,7 +93,8 @@ impl HeapSize for GaussianCloud {
 
 impl Target for GaussianCloud {
     fn nearest(&self, p: &Vector3<f64>, max_dist_sq: f64) -> Option<u32> {
-        let n = self.tree.nearest(&[p.x as f32, p.y as f32, p.z as f32])?;
+        let reach = gate_radius(max_dist_sq.sqrt() as f32);
+        let n = self.tree.nearest_within(&[p.x as f32, p.y as f32, p.z as f32], reach)?;
         (f64::from(n.dist_sq) <= max_dist_sq).then_some(n.index as u32)
     }
 

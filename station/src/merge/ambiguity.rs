@@ -22,6 +22,7 @@
 //! symmetric, the descriptors are not fooled).
 
 use cloud::global::{Features, Surfels, matching, polish, ransac};
+use cloud::kdtree::gate_radius;
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
@@ -88,7 +89,7 @@ pub fn upright_support(source: &Surfels, target: &Surfels, transform: &Isometry3
         .map(|i| (t * source.points[i], t.rotation * source.normals[i]))
         .filter(|(_, n)| n.z.abs() < UPRIGHT)
         .map(|(p, n)| {
-            let on_target = target.tree.nearest(&[p.x, p.y, p.z]).is_some_and(|nn| {
+            let on_target = target.tree.nearest_within(&[p.x, p.y, p.z], gate_radius(distance)).is_some_and(|nn| {
                 nn.dist_sq <= distance * distance && n.dot(&target.normals[nn.index]).abs() > PARALLEL
             });
             (1usize, usize::from(on_target))
