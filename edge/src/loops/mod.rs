@@ -8,8 +8,9 @@
 //!    `exclude_recent_m` metres of path behind, then the best by the full descriptor distance;
 //! 3. [`verify`]: the keyframe registered against a submap around the best candidate, from the
 //!    descriptor's yaw, accepted on overlap and constraint;
-//! 4. [`consistency`]: the loop against the odometry, then the largest set of mutually consistent
-//!    loops, which are the ones in the graph;
+//! 4. [`consistency`]: the loop against the odometry (a loop that agrees is then refined between
+//!    the merged neighbourhoods of both keyframes, [`verify::refine`]), then the largest set of
+//!    mutually consistent loops, which are the ones in the graph;
 //! 5. [`graph`]: the pose graph re-optimised when that set changed.
 //!
 //! No I/O: the odometry pipeline and the node call it and write or publish what it says.
@@ -321,6 +322,7 @@ impl LoopCloser {
                 tracing::debug!(a, b, margin, "odometry check");
                 // Within the allowance (eq. 1 of `consistency`).
                 if margin <= 1.0 {
+                    let candidate = self.refine(candidate);
                     tracing::debug!(a, b, descriptor_distance, overlap = candidate.fit.overlap, "loop verified");
                     self.verified.push(candidate);
                     return true;
@@ -345,6 +347,34 @@ impl LoopCloser {
             covariances.extend(c);
         }
         GaussianCloud::from_parts(points, covariances)
+    }
+
+    /// Step 3b: a loop that passed refined on the merged neighbourhoods of both keyframes
+    /// ([`verify::refine`]); kept as it was where the refined fit fails the verification or
+    /// the odometry test.
+    fn refine(&self, mut l: Loop) -> Loop {
+        let w = self.config.verify.refine_keyframes;
+        if w == 0 {
+            return l;
+        }
+        let last = self.places.len() - 1;
+        let (source, target) = rayon::join(
+            || self.merged(l.b, l.b.saturating_sub(w)..=l.b),
+            || self.merged(l.a, l.a.saturating_sub(w)..=(l.a + w).min(last)),
+        );
+        let Some(fit) = verify::refine(&source, &target, &l.fit, &self.config.verify) else { return l };
+        let refined = Loop { fit, ..l.clone() };
+        if consistency::odometry_margin(&self.view(&refined), &self.config.consistency) <= 1.0 {
+            l = refined;
+        }
+        l
+    }
+
+    /// The keyframes in `range` in place `origin`'s frame by odometry ([`verify::neighbourhood`]).
+    fn merged(&self, origin: usize, range: std::ops::RangeInclusive<usize>) -> GaussianCloud {
+        let to_origin = self.places[origin].odometry.inverse();
+        let keyframes = range.map(|k| (&self.places[k].cloud, to_origin * self.places[k].odometry));
+        verify::neighbourhood(keyframes, &self.config.verify)
     }
 
     /// Place `k`'s cloud with covariances, from the cache or estimated now.
