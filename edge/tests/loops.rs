@@ -216,27 +216,25 @@ fn a_sparse_sensors_loop_is_refined_to_the_true_tilt() {
         let around = |centre: usize, before: usize, after: usize| -> Vec<usize> {
             (centre.saturating_sub(step * before)..=centre + step * after).step_by(step).collect()
         };
+        let neighbourhood = |placed: &[(PointCloud, Isometry3<f64>)]| {
+            verify::neighbourhood(placed.iter().map(|(c, p)| (c, *p)), &config)
+        };
         let w = config.refine_keyframes;
         for &(a, b) in revisit.pairs {
             let name = format!("{} robot {}, {a}-{b}", revisit.scenario, revisit.robot + 1);
             let truth = sim.ground_truth(a).inverse() * sim.ground_truth(b);
-            // The first stage as the loop closure runs it: one keyframe against the candidate and
-            // two neighbours either side, from Scan Context's yaw (the true one here), no translation.
-            let submap = placed(&around(a, 2, 2), a);
-            let target = verify::neighbourhood(submap.iter().map(|(c, p)| (c, *p)), &config);
+            // The first stage: one keyframe against the candidate and two neighbours either side,
+            // from Scan Context's yaw (the true one here), no translation. (The loop closure
+            // estimates the submap's covariances per keyframe; here they are the merged points'.)
+            let target = neighbourhood(&placed(&around(a, 2, 2), a));
             let source = verify::gaussians(&cloud(b), &config);
             let initial = yaw(truth.rotation.euler_angles().2);
             let Verdict::Loop(fit) = verify::verify(&source, &target, &initial, &config) else {
                 panic!("{name}: not verified");
             };
             let (olds, news) = (placed(&around(a, w, w), a), placed(&around(b, w, 0), b));
-            let refined = verify::refine(
-                &verify::neighbourhood(news.iter().map(|(c, p)| (c, *p)), &config),
-                &verify::neighbourhood(olds.iter().map(|(c, p)| (c, *p)), &config),
-                &fit,
-                &config,
-            )
-            .expect("the refined fit passes");
+            let refined = verify::refine(&neighbourhood(&news), &neighbourhood(&olds), &fit, &config)
+                .expect("the refined fit passes");
             let (first, last) = (tilt_and_shift(&fit.transform, &truth), tilt_and_shift(&refined.transform, &truth));
             println!("{name}: tilt {:.3} -> {:.3} deg, shift {:.3} -> {:.3} m", first.0, last.0, first.1, last.1);
             assert!(last.0 < 0.1, "{name}: refined loop tilted {:.3} deg", last.0);

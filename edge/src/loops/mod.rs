@@ -352,7 +352,7 @@ impl LoopCloser {
     /// Step 3b: a loop that passed refined on the merged neighbourhoods of both keyframes
     /// ([`verify::refine`]); kept as it was where the refined fit fails the verification or
     /// the odometry test.
-    fn refine(&self, mut l: Loop) -> Loop {
+    fn refine(&self, l: Loop) -> Loop {
         let w = self.config.verify.refine_keyframes;
         if w == 0 {
             return l;
@@ -364,10 +364,7 @@ impl LoopCloser {
         );
         let Some(fit) = verify::refine(&source, &target, &l.fit, &self.config.verify) else { return l };
         let refined = Loop { fit, ..l.clone() };
-        if consistency::odometry_margin(&self.view(&refined), &self.config.consistency) <= 1.0 {
-            l = refined;
-        }
-        l
+        if consistency::odometry_margin(&self.view(&refined), &self.config.consistency) <= 1.0 { refined } else { l }
     }
 
     /// The keyframes in `range` in place `origin`'s frame by odometry ([`verify::neighbourhood`]).

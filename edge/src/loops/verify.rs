@@ -137,8 +137,7 @@ pub fn verify(
     initial: &Isometry3<f64>,
     config: &VerifyConfig,
 ) -> Verdict {
-    let least = config.coarse.neighbours.max(registration::MIN_POINTS);
-    if keyframe.len() < least || submap.len() < least {
+    if !registrable(keyframe, submap, config) {
         return Verdict::Unregistrable;
     }
     let Some(coarse) = coarse::align_gaussians(keyframe, submap, initial, &config.coarse) else {
@@ -149,6 +148,12 @@ pub fn verify(
         return Verdict::Unregistrable;
     };
     judge(judged_fit(keyframe, submap, &result, config), config)
+}
+
+/// Whether both clouds have the points a covariance and a fit need.
+fn registrable(source: &GaussianCloud, target: &GaussianCloud, config: &VerifyConfig) -> bool {
+    let least = config.coarse.neighbours.max(registration::MIN_POINTS);
+    source.len() >= least && target.len() >= least
 }
 
 /// The fine stage's settings.
@@ -165,8 +170,7 @@ fn fine_config(config: &VerifyConfig) -> RegistrationConfig {
 /// its own merged points (see the module documentation). `None` where the refined fit would not
 /// pass the verification itself; the caller keeps the first fit then.
 pub fn refine(source: &GaussianCloud, target: &GaussianCloud, fit: &Fit, config: &VerifyConfig) -> Option<Fit> {
-    let least = config.coarse.neighbours.max(registration::MIN_POINTS);
-    if source.len() < least || target.len() < least {
+    if !registrable(source, target, config) {
         return None;
     }
     let result =
