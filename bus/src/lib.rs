@@ -9,6 +9,7 @@
 
 use std::net::{Ipv4Addr, TcpListener};
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use zenoh::Session;
 
@@ -92,7 +93,27 @@ impl Network {
         let config = self.config()?;
         zenoh::open(config).await.map_err(|e| BusError::Open(e.to_string()))
     }
+
+    /// Opens a session, trying again for as long as it cannot: a robot may boot before its router
+    /// is up or reachable, and a zenoh client gives up at its first failed connection. Waits 1 s,
+    /// then twice as long each time up to [`JOIN_RETRY_MAX`], each failure logged. Settings that
+    /// cannot work (an unreadable file, an endpoint off loopback) fail at once.
+    pub async fn open_patiently(&self) -> Result<Session, BusError> {
+        let config = self.config()?;
+        let mut wait = Duration::from_secs(1);
+        loop {
+            match zenoh::open(config.clone()).await {
+                Ok(session) => return Ok(session),
+                Err(e) => tracing::warn!("cannot join {}: {e}; trying again in {} s", describe(self), wait.as_secs()),
+            }
+            tokio::time::sleep(wait).await;
+            wait = (wait * 2).min(JOIN_RETRY_MAX);
+        }
+    }
 }
+
+/// Longest wait between two tries of [`Network::open_patiently`].
+pub const JOIN_RETRY_MAX: Duration = Duration::from_secs(10);
 
 /// The station's zenoh port: where it listens and where edges and tools connect by default
 /// (zenoh's own default port, so a stock `zenohd` router also sits there).

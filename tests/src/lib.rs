@@ -100,17 +100,25 @@ impl Process {
         matches!(self.child.try_wait(), Ok(None))
     }
 
-    /// The last lines of its log, for assertion messages.
+    /// The last lines of its log, for assertion messages: without the frames of a backtrace, which
+    /// would otherwise push the error or panic message itself out of view.
     pub fn tail(&self) -> String {
         let text = std::fs::read_to_string(&self.log).unwrap_or_default();
-        let lines: Vec<&str> = text.lines().collect();
+        let lines: Vec<&str> = text.lines().filter(|l| !is_backtrace_frame(l)).collect();
         format!(
-            "--- {} (last lines of {}) ---\n{}",
+            "--- {} (last lines of {}, backtrace frames left out) ---\n{}",
             self.name,
             self.log.display(),
             lines[lines.len().saturating_sub(40)..].join("\n")
         )
     }
+}
+
+/// A line of a Rust backtrace: `  12: function` or `      at file:line:column`.
+fn is_backtrace_frame(line: &str) -> bool {
+    let line = line.trim_start();
+    line.starts_with("at ")
+        || line.split_once(": ").is_some_and(|(n, _)| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
 }
 
 impl Drop for Process {
@@ -308,5 +316,7 @@ pub fn difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
 
 /// A fresh scratch directory, removed at the end of the test.
 pub fn scratch() -> tempfile::TempDir {
-    tempfile::Builder::new().prefix("emr-system-").tempdir().expect("scratch dir")
+    // EMR_KEEP_SCRATCH=1 keeps it, with the processes' logs, to look into a failure.
+    let keep = std::env::var_os("EMR_KEEP_SCRATCH").is_some();
+    tempfile::Builder::new().prefix("emr-system-").disable_cleanup(keep).tempdir().expect("scratch dir")
 }

@@ -205,3 +205,41 @@ async fn attack(session: &zenoh::Session) -> u64 {
     }
     sent
 }
+
+/// A robot that boots before its router is up: a zenoh client gives up at its first failed
+/// connection, so the edge keeps trying to join, and once the station listens every keyframe
+/// arrives.
+#[test]
+fn a_robot_started_before_its_router_joins_once_the_router_is_up() {
+    let dir = scratch();
+    let port = bus::free_port().unwrap();
+    let client = dir.path().join("client.json5");
+    let endpoint = bus::endpoint(port);
+    let scouting = "scouting: { multicast: { enabled: false }, gossip: { enabled: false } }";
+    std::fs::write(&client, format!("{{ mode: \"client\", connect: {{ endpoints: [\"{endpoint}\"] }}, {scouting} }}"))
+        .unwrap();
+    let summary = summary_path(dir.path(), 1);
+    let mut args = edge_args(FLEET, SCENARIO, 1, 100, port, &summary);
+    args.truncate(args.len() - 2);
+    args.extend(["--zenoh".into(), client.display().to_string()]);
+    let mut edge = Process::start("early-edge1", &binary("emr-edge"), &args, dir.path());
+
+    // Nothing listens yet: the edge says it will try again, and keeps running.
+    let log = dir.path().join("early-edge1.log");
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    while !std::fs::read_to_string(&log).unwrap_or_default().contains("trying again") {
+        assert!(edge.running(), "the edge gave up without a router\n{}", edge.tail());
+        assert!(std::time::Instant::now() < deadline, "the edge did not say it tries again\n{}", edge.tail());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    std::thread::sleep(Duration::from_secs(2));
+    assert!(edge.running(), "the edge gave up without a router\n{}", edge.tail());
+    assert!(!summary.exists(), "the edge mapped before it joined");
+
+    let mut station = start_station("late", port, dir.path());
+    let observer = Observer::connect(FLEET, port);
+    let keyframes = wait_summary(&summary, TIMEOUT, &mut [&mut edge, &mut station]).keyframes;
+    assert!(keyframes > 0);
+    let map = observer.wait_global_map(TIMEOUT, &mut [&mut edge, &mut station], |m| holds_all(m, &[(1, keyframes)]));
+    println!("joined late: {keyframes} keyframes, {}", describe(&map));
+}

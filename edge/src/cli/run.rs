@@ -90,13 +90,23 @@ pub fn run(args: RunArgs) -> Result<()> {
     let summary = runtime.block_on(async {
         // Listen for the signals before anything slow, so that an early Ctrl-C still stops cleanly.
         let shutdown = bus::shutdown_signal().context("cannot handle SIGINT/SIGTERM")?;
-        let session = network.open().await.with_context(|| format!("cannot join {}", bus::describe(&network)))?;
+        let mut shutdown = std::pin::pin!(shutdown);
+        // The router may not be up yet: keep trying (a signal still stops the robot meanwhile).
+        let joined = tokio::select! {
+            joined = network.open_patiently() => joined,
+            () = &mut shutdown => return Ok(None),
+        };
+        let session = joined.with_context(|| format!("cannot join {}", bus::describe(&network)))?;
         let summary = node::run(&session, config, shutdown).await;
         if let Err(e) = session.close().await {
             tracing::warn!("cannot close the zenoh session: {e}");
         }
-        summary.with_context(|| format!("robot {robot} of fleet {}", args.fleet))
+        summary.map(Some).with_context(|| format!("robot {robot} of fleet {}", args.fleet))
     })?;
+    let Some(summary) = summary else {
+        tracing::info!("robot {robot}: stopped before it could join the fleet");
+        return Ok(());
+    };
     tracing::info!(
         "robot {robot}: {} scans, {} keyframes, {:.1} MB published",
         summary.frames,

@@ -124,7 +124,24 @@ impl Merger {
     /// Sets map `id` to `cloud` at `revision`, a map of any shape: it is prepared again by the
     /// next round. A revision already held is ignored.
     pub fn update(&mut self, id: usize, revision: u64, cloud: PointCloud) {
+        if !self.holds(id, revision) {
+            self.set(id, revision, cloud, true);
+        }
+    }
+
+    /// Sets map `id` to `cloud` at `revision` even when that revision is held: the same map built
+    /// again (its points in another order, see [`Merger::grow`]). Prepared again by the next round.
+    pub fn rebuild(&mut self, id: usize, revision: u64, cloud: PointCloud) {
         self.set(id, revision, cloud, true);
+    }
+
+    /// Map `id` as last given, if held.
+    pub fn cloud_of(&self, id: usize) -> Option<&PointCloud> {
+        self.maps.get(&id).map(|slot| slot.cloud.as_ref())
+    }
+
+    fn holds(&self, id: usize, revision: u64) -> bool {
+        self.maps.get(&id).is_some_and(|s| s.revision == revision)
     }
 
     /// Sets map `id` to `cloud` at `revision`, a map that holds everything the previous revision
@@ -136,13 +153,12 @@ impl Merger {
     /// (a voxel's centroid as points join it); the global map keeps them where they were until the
     /// map's placement or shape changes.
     pub fn grow(&mut self, id: usize, revision: u64, cloud: PointCloud) {
-        self.set(id, revision, cloud, false);
+        if !self.holds(id, revision) {
+            self.set(id, revision, cloud, false);
+        }
     }
 
     fn set(&mut self, id: usize, revision: u64, mut cloud: PointCloud, reshaped: bool) {
-        if self.maps.get(&id).is_some_and(|s| s.revision == revision) {
-            return;
-        }
         self.changes += 1;
         let dropped_non_finite = cloud.retain_finite();
         let cloud = Arc::new(cloud);

@@ -107,6 +107,13 @@ struct LocalMap {
     pose_revision: Option<u64>,
     /// Keyframes already in `map`.
     included: FxHashSet<u64>,
+    /// Every keyframe went in after those of lower sequence numbers. A map grown out of order (a
+    /// gap filled by backfill, a restarted station's store) holds the same voxels in another
+    /// order, with other rounding of their centroids, and the search finds a slightly different
+    /// placement: a settling merge rebuilds it in order ([`MergeWorker::give`]).
+    in_order: bool,
+    /// Highest sequence number in `map`.
+    newest: Option<u64>,
     map: VoxelMap,
 }
 
@@ -180,7 +187,7 @@ impl MergeWorker {
     ) -> Result<MergeOutcome, MergeError> {
         let clock = Instant::now();
         for r in robots {
-            self.give(r);
+            self.give(r, settle);
         }
         if settle {
             self.merger.settle();
@@ -238,18 +245,27 @@ impl MergeWorker {
     }
 
     /// Brings robot `r`'s local map up to its snapshot: new keyframes are added to it (the map
-    /// grows); new poses rebuild it (the map changes shape).
-    fn give(&mut self, r: &RobotSnapshot) {
+    /// grows); new poses rebuild it (the map changes shape), and so does a `settle` of a map that
+    /// grew out of order: a fleet at rest gets the map its keyframes give in sequence order,
+    /// whatever order the network brought them in.
+    fn give(&mut self, r: &RobotSnapshot, settle: bool) {
         let id = r.robot as usize;
-        let current = self.maps.get(&r.robot).filter(|m| m.pose_revision == r.basis.pose_revision);
+        let current =
+            self.maps.get(&r.robot).filter(|m| m.pose_revision == r.basis.pose_revision && (m.in_order || !settle));
         if current.is_some_and(|m| m.revision == r.revision) {
             return;
         }
         let rebuilt = current.is_none();
         if rebuilt {
             let map = VoxelMap::new(self.voxel).expect("local_map_voxel is validated positive");
-            let fresh =
-                LocalMap { revision: 0, pose_revision: r.basis.pose_revision, included: FxHashSet::default(), map };
+            let fresh = LocalMap {
+                revision: 0,
+                pose_revision: r.basis.pose_revision,
+                included: FxHashSet::default(),
+                in_order: true,
+                newest: None,
+                map,
+            };
             self.maps.insert(r.robot, fresh);
         }
         let local = self.maps.get_mut(&r.robot).expect("inserted above");
@@ -268,6 +284,8 @@ impl MergeWorker {
                     places.contexts.push(first.context);
                 }
                 if local.included.insert(kf.seq) {
+                    local.in_order &= local.newest.is_none_or(|n| kf.seq > n);
+                    local.newest = local.newest.max(Some(kf.seq));
                     let pose = kf.pose.cast::<f32>();
                     local.map.insert(kf.cloud.points.iter().map(|p| pose * p));
                 }
@@ -275,10 +293,22 @@ impl MergeWorker {
         }
         let given = places.places();
         local.revision = r.revision;
+        let cloud = local.map.cloud();
+        if settle {
+            tracing::debug!(
+                "robot {}: settling on a map of {} keyframes, {} points{}, digest {:016x}",
+                r.robot,
+                local.included.len(),
+                cloud.len(),
+                if rebuilt { ", rebuilt" } else { "" },
+                digest(&cloud)
+            );
+        }
         if rebuilt {
-            self.merger.update(id, r.revision, local.map.cloud());
+            // At the revision the merger holds when only the order changed.
+            self.merger.rebuild(id, r.revision, cloud);
         } else {
-            self.merger.grow(id, r.revision, local.map.cloud());
+            self.merger.grow(id, r.revision, cloud);
         }
         let views = self.views(r);
         self.merger.set_views(id, Arc::new(views));
@@ -371,6 +401,17 @@ fn decode(
             }
         })
         .collect()
+}
+
+/// A digest of a map's points (their bits, in order): two stations' logs tell whether they merged
+/// the same map.
+fn digest(cloud: &PointCloud) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut hasher = rustc_hash::FxHasher::default();
+    for p in &cloud.points {
+        p.coords.iter().for_each(|c| c.to_bits().hash(&mut hasher));
+    }
+    hasher.finish()
 }
 
 /// Why pairs were refused and where the time went: what an operator needs when a robot stays out.
@@ -470,5 +511,78 @@ fn compress(cloud: &PointCloud) -> CompressedCloud {
             tracing::error!("cannot encode the global map: {e}");
             CompressedCloud::default()
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Point3;
+    use proto::{Keyframe, Pose};
+
+    use super::*;
+
+    const ROBOT: u32 = 1;
+
+    /// Keyframe `seq`: the floor all keyframes see and a wall post of its own `seq` metres along x,
+    /// so that keyframes share voxels and each adds some.
+    fn placed(seq: u64) -> PlacedKeyframe {
+        let pose = Isometry3::translation(0.0, 0.0, 0.0);
+        let grid = |n: usize| (0..n).map(|i| i as f32 * 0.13);
+        let mut points = Vec::new();
+        for a in grid(40) {
+            for b in grid(20) {
+                points.extend([Point3::new(seq as f32 + 0.05, a - 2.0, b), Point3::new(a, b - 1.3, -1.0)]);
+            }
+        }
+        let cloud = PointCloud::from_points(points);
+        let data = codec::encode(&cloud, &CodecConfig::default()).unwrap();
+        let msg = Keyframe {
+            fleet: "order".into(),
+            robot: ROBOT,
+            seq,
+            stamp: Some(Timestamp::from_secs_f64(seq as f64)),
+            odom_pose: Some(Pose::from(pose)),
+            scan_context: None,
+            cloud: Some(CompressedCloud { data: data.into(), points: cloud.len() as u64 }),
+        };
+        PlacedKeyframe { seq, bytes: msg.encode_to_vec().into(), pose }
+    }
+
+    /// The robot's snapshot holding keyframes `seqs` (its revision counts them).
+    fn snapshot_of(seqs: &[u64]) -> RobotSnapshot {
+        RobotSnapshot {
+            robot: ROBOT,
+            revision: seqs.len() as u64,
+            keyframes: seqs.iter().map(|&s| placed(s)).collect(),
+            basis: Basis { keyframes: seqs.len() as u64, pose_revision: None },
+        }
+    }
+
+    /// The robot's local map, checked to be what the merger holds.
+    fn local_map(worker: &MergeWorker) -> Vec<Point3<f32>> {
+        let points = worker.maps[&ROBOT].map.cloud().points;
+        let given = worker.merger.cloud_of(ROBOT as usize).expect("the merger holds the map");
+        assert!(given.points == points, "the merger holds another map than the local one");
+        points
+    }
+
+    #[test]
+    fn a_settled_map_is_the_one_its_keyframes_give_in_order_whatever_order_they_came_in() {
+        let worker = || MergeWorker::new(MergeConfig::default(), Arc::new(|| {})).unwrap();
+        let all = [0, 1, 2, 3];
+        let mut ordered = worker();
+        ordered.give(&snapshot_of(&all), false);
+        // A gap filled later, as backfill does: 2 comes after 3, 1 after both.
+        let mut gapped = worker();
+        gapped.give(&snapshot_of(&[0, 3]), false);
+        gapped.give(&snapshot_of(&[0, 2, 3]), false);
+        gapped.give(&snapshot_of(&all), false);
+        assert!(local_map(&gapped) != local_map(&ordered), "the keyframes must fill voxels in another order");
+        gapped.give(&snapshot_of(&all), true);
+        assert!(local_map(&gapped) == local_map(&ordered), "the settled map is not the in-order one");
+        // A map that grew in order is kept as it is by a settle, and stays the same.
+        assert!(ordered.maps[&ROBOT].in_order && gapped.maps[&ROBOT].in_order);
+        ordered.give(&snapshot_of(&all), true);
+        assert!(local_map(&gapped) == local_map(&ordered), "a settle changed a map that grew in order");
     }
 }
