@@ -213,11 +213,8 @@ async fn attack(session: &zenoh::Session) -> u64 {
 fn a_robot_started_before_its_router_joins_once_the_router_is_up() {
     let dir = scratch();
     let port = bus::free_port().unwrap();
-    let client = dir.path().join("client.json5");
-    let endpoint = bus::endpoint(port);
-    let scouting = "scouting: { multicast: { enabled: false }, gossip: { enabled: false } }";
-    std::fs::write(&client, format!("{{ mode: \"client\", connect: {{ endpoints: [\"{endpoint}\"] }}, {scouting} }}"))
-        .unwrap();
+    let client =
+        tests::hosts::write_file(dir.path(), "client.json5", &tests::hosts::client_config(&bus::endpoint(port)));
     let summary = summary_path(dir.path(), 1);
     let mut args = edge_args(FLEET, SCENARIO, 1, 100, port, &summary);
     args.truncate(args.len() - 2);

@@ -526,7 +526,7 @@ mod tests {
     /// Keyframe `seq`: the floor all keyframes see and a wall post of its own `seq` metres along x,
     /// so that keyframes share voxels and each adds some.
     fn placed(seq: u64) -> PlacedKeyframe {
-        let pose = Isometry3::translation(0.0, 0.0, 0.0);
+        let pose = Isometry3::identity();
         let grid = |n: usize| (0..n).map(|i| i as f32 * 0.13);
         let mut points = Vec::new();
         for a in grid(40) {
