@@ -31,6 +31,12 @@ fn revisit_truth() -> Isometry3<f64> {
     from_matrix(&Matrix4::from_row_slice(&values)).unwrap()
 }
 
+/// `new` verified against `old` from the descriptor's yaw, as the loop closure does.
+fn verify_scans(new: &PointCloud, old: &PointCloud, yaw_rad: f64, config: &LoopConfig) -> Verdict {
+    let thin = |cloud| verify::thin(cloud, &config.verify);
+    verify::verify_clouds(&thin(new), &thin(old), &yaw(yaw_rad), &config.verify)
+}
+
 fn yaw(rad: f64) -> Isometry3<f64> {
     Isometry3::from_parts(Default::default(), UnitQuaternion::from_scaled_axis(Vector3::z() * rad))
 }
@@ -55,16 +61,55 @@ fn kitti08_reverse_revisit_is_recognised_and_verified() {
     // Within two 6-degree sectors.
     assert!(yaw_error.abs().to_degrees() <= 12.0, "yaw off by {:.1} deg", yaw_error.to_degrees());
 
-    let verdict = verify::verify_clouds(
-        &verify::thin(&new, &config.verify),
-        &verify::thin(&old, &config.verify),
-        &yaw(found.yaw),
-        &config.verify,
-    );
+    let verdict = verify_scans(&new, &old, found.yaw, &config);
     let Verdict::Loop(fit) = verdict else { panic!("the revisit is not verified: {verdict:?}") };
     let e = pose_error(&fit.transform, &truth);
     println!("verified: overlap {:.2}, constraint {:.3}, error {e:?}", fit.overlap, fit.constraint);
     assert!(e.translation_m < 0.3 && e.rotation_deg < 2.0, "{e:?}");
+}
+
+#[test]
+fn a_fit_is_trusted_only_within_the_verifications_reach() {
+    // The revisit is 2.46 m from the descriptor's start (zero translation, its yaw): within the
+    // default reach it is a loop (the test above); a verification that may move only 2 m finds
+    // the same pose and refuses it as beyond its reach.
+    let mut config = LoopConfig::preset(Preset::Outdoor);
+    config.verify.reach_m = 2.0;
+    let (old, new) = (scan("kitti08_revisit/000720.bin"), scan("kitti08_revisit/001500.bin"));
+    let found = ScanContext::new(&old, &config.scan_context)
+        .distance(&ScanContext::new(&new, &config.scan_context), config.scan_context.shift_window);
+    let verdict = verify_scans(&new, &old, found.yaw, &config);
+    let Verdict::Wandered(fit) = verdict else { panic!("not refused as beyond reach: {verdict:?}") };
+    let e = pose_error(&fit.transform, &revisit_truth());
+    println!("moved {:.2} m, {e:?}", fit.transform.translation.vector.norm());
+    assert!(e.translation_m < 0.3 && e.rotation_deg < 2.0, "{e:?}");
+}
+
+#[test]
+fn the_default_reach_is_where_the_verification_stops_finding_the_revisit() {
+    // Started off the true pose by `d` in 8 directions (the true rotation), with no reach limit:
+    // within the coarse stage's 4 m correspondences every start finds the revisit, from the
+    // default reach none does, so a fit that moved that far is never the revisit found.
+    let mut config = LoopConfig::preset(Preset::Outdoor).verify;
+    let default_reach = config.reach_m;
+    config.reach_m = f64::INFINITY;
+    let truth = revisit_truth();
+    let source = verify::gaussians(&verify::thin(&scan("kitti08_revisit/001500.bin"), &config), &config);
+    let target = verify::gaussians(&verify::thin(&scan("kitti08_revisit/000720.bin"), &config), &config);
+    let found_from = |d: f64| {
+        (0..8)
+            .filter(|k| {
+                let angle = f64::from(*k) * std::f64::consts::FRAC_PI_4;
+                let start = Isometry3::translation(d * angle.cos(), d * angle.sin(), 0.0) * truth;
+                let Verdict::Loop(fit) = verify::verify(&source, &target, &start, &config) else { return false };
+                let e = pose_error(&fit.transform, &truth);
+                e.translation_m < 0.3 && e.rotation_deg < 2.0
+            })
+            .count()
+    };
+    let (near, far) = (found_from(4.0), found_from(default_reach));
+    println!("found from 4 m: {near} of 8, from {default_reach} m: {far} of 8");
+    assert_eq!((near, far), (8, 0));
 }
 
 #[test]
@@ -80,12 +125,7 @@ fn another_street_is_not_verified_as_the_revisit() {
     println!("other street: descriptor distance {:.3} (the revisit {:.3})", found.distance, revisit.distance);
     assert!(found.distance > revisit.distance);
     // Even verified from the descriptor's yaw, the geometry refuses it.
-    let verdict = verify::verify_clouds(
-        &verify::thin(&other, &config.verify),
-        &verify::thin(&street, &config.verify),
-        &yaw(found.yaw),
-        &config.verify,
-    );
+    let verdict = verify_scans(&other, &street, found.yaw, &config);
     assert!(!matches!(verdict, Verdict::Loop(_)), "{verdict:?}");
 }
 
@@ -230,7 +270,7 @@ fn a_sparse_sensors_loop_is_refined_to_the_true_tilt() {
             let source = verify::gaussians(&cloud(b), &config);
             let initial = yaw(truth.rotation.euler_angles().2);
             let Verdict::Loop(fit) = verify::verify(&source, &target, &initial, &config) else {
-                panic!("{name}: not verified");
+                panic!("{name}: not verified ({:.2} m apart)", truth.translation.vector.norm());
             };
             let (olds, news) = (placed(&around(a, w, w), a), placed(&around(b, w, 0), b));
             let refined = verify::refine(&neighbourhood(&news), &neighbourhood(&olds), &fit, &config)

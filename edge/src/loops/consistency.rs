@@ -55,11 +55,16 @@ impl ConsistencyConfig {
         self.margin(error, path_m) <= 1.0
     }
 
+    /// The translation disagreement allowed over `path_m` metres of odometry (m).
+    pub fn translation_allowance_m(&self, path_m: f64) -> f64 {
+        self.translation_m + self.drift * path_m
+    }
+
     /// How much of the allowance `error` uses: its translation over the translation bound or its
     /// rotation over the rotation bound, whichever is larger (at most 1 when explained).
     pub fn margin(&self, error: &Isometry3<f64>, path_m: f64) -> f64 {
         let e = pose_error(error, &Isometry3::identity());
-        let translation = e.translation_m / (self.translation_m + self.drift * path_m);
+        let translation = e.translation_m / self.translation_allowance_m(path_m);
         let rotation = e.rotation_deg / (self.rotation_deg + self.rotation_drift_deg_per_m * path_m);
         translation.max(rotation)
     }
@@ -84,6 +89,24 @@ pub struct LoopView {
 pub fn odometry_margin(l: &LoopView, config: &ConsistencyConfig) -> f64 {
     let odometry = l.odom_a.inverse() * l.odom_b;
     config.margin(&(l.transform.inverse() * odometry), (l.path_b - l.path_a).abs())
+}
+
+/// Eq. (1) before any fit: whether a loop from `a` to `b` that starts at `initial` and moves at most
+/// `reach_m` can agree with the odometry. The loop's translation `t` is then within `reach_m` of
+/// `initial`'s, and eq. (1)'s translation error is `|t_O - t| >= |t_O - t_initial| - reach_m`
+/// (`t_O` the odometry's): when that exceeds the allowance no fit within reach passes, whatever it
+/// finds.
+pub fn reachable(
+    odom_a: &Isometry3<f64>,
+    odom_b: &Isometry3<f64>,
+    path_m: f64,
+    initial: &Isometry3<f64>,
+    reach_m: f64,
+    config: &ConsistencyConfig,
+) -> bool {
+    let odometry = odom_a.inverse() * odom_b;
+    let gap = (odometry.translation.vector - initial.translation.vector).norm();
+    gap - reach_m <= config.translation_allowance_m(path_m)
 }
 
 /// Eq. (2): `Z₁⁻¹ · (a₁⁻¹ a₂) · Z₂ · (b₂⁻¹ b₁)`, the cycle through two loops, over the odometry legs
@@ -127,7 +150,7 @@ pub fn largest_consistent_set(loops: &[LoopView], config: &ConsistencyConfig) ->
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::Vector3;
+    use nalgebra::{UnitQuaternion, Vector3};
 
     /// A robot driving along x at 1 m per keyframe: keyframe `k` at (k, 0, 0), path k metres.
     fn odom(k: usize, drift_per_m: f64) -> (Isometry3<f64>, f64) {
@@ -156,6 +179,52 @@ mod tests {
         assert!(odometry_margin(&view(0, 100, 0.01, Vector3::zeros()), &config) <= 1.0);
         // An aisle 5.8 m over: beyond 2.3 m.
         assert!(odometry_margin(&view(0, 100, 0.01, Vector3::new(0.0, 5.8, 0.0)), &config) > 1.0);
+    }
+
+    /// Fits within `reach` of the start (translation zero, rotation `rotation`): the start, and
+    /// points at `reach / 2` and `reach` along the 26 directions to a cube's faces, edges and corners.
+    fn fits_within(reach: f64, rotation: UnitQuaternion<f64>) -> Vec<Isometry3<f64>> {
+        let axis = [-1.0, 0.0, 1.0];
+        let directions = axis
+            .into_iter()
+            .flat_map(|x| axis.into_iter().flat_map(move |y| axis.into_iter().map(move |z| Vector3::new(x, y, z))))
+            .filter(|d| d.norm() > 0.0);
+        let mut fits = vec![Isometry3::from_parts(Default::default(), rotation)];
+        for d in directions {
+            for r in [reach / 2.0, reach] {
+                fits.push(Isometry3::from_parts((d.normalize() * r).into(), rotation));
+            }
+        }
+        fits
+    }
+
+    #[test]
+    fn a_candidate_out_of_reach_could_pass_the_odometry_test_with_no_fit_within_reach() {
+        let config = ConsistencyConfig::default();
+        let (reach, path) = (4.0, 100.0);
+        // The descriptor's yaw, which the odometry agrees with: only translation decides.
+        let turn = UnitQuaternion::from_scaled_axis(Vector3::z() * 0.3);
+        let initial = Isometry3::from_parts(Default::default(), turn);
+        // Keyframes 100 m of path apart that the odometry puts `gap` metres apart sideways (a
+        // place seen again from the next aisle). The allowance over 100 m is 2.3 m.
+        for gap in [0.0, 2.0, 4.0, 6.2, 6.4, 8.0, 19.0] {
+            let odom_a = Isometry3::identity();
+            let odom_b = Isometry3::from_parts(Vector3::new(0.0, gap, 0.0).into(), turn);
+            let reachable = reachable(&odom_a, &odom_b, path, &initial, reach, &config);
+            assert_eq!(reachable, gap <= reach + 2.3, "gap {gap}");
+            let margin = |transform| {
+                odometry_margin(&LoopView { odom_a, odom_b, path_a: 0.0, path_b: path, transform }, &config)
+            };
+            let margins: Vec<f64> = fits_within(reach, turn).into_iter().map(margin).collect();
+            // Unreachable: eq. (1) refuses every fit within reach, so deciding before the fit is
+            // deciding as after it. Reachable: the fit that went towards the odometry's pose passes.
+            let towards = Isometry3::from_parts(Vector3::new(0.0, gap.min(reach), 0.0).into(), turn);
+            if reachable {
+                assert!(margin(towards) <= 1.0, "gap {gap}: {}", margin(towards));
+            } else {
+                assert!(margins.iter().all(|&m| m > 1.0), "gap {gap}: {margins:?}");
+            }
+        }
     }
 
     #[test]

@@ -7,7 +7,9 @@
 //! 2. candidates: the `candidates` nearest ring keys among keyframes at least
 //!    `exclude_recent_m` metres of path behind, then the best by the full descriptor distance;
 //! 3. [`verify`]: the keyframe registered against a submap around the best candidate, from the
-//!    descriptor's yaw, accepted on overlap and constraint;
+//!    descriptor's yaw, accepted on overlap and constraint; not run when the odometry puts the
+//!    candidate farther away than a fit within the verification's reach could agree with
+//!    ([`consistency::reachable`]: the odometry test of step 4, decided before the fit);
 //! 4. [`consistency`]: the loop against the odometry (a loop that agrees is then refined between
 //!    the merged neighbourhoods of both keyframes, [`verify::refine`]), then the largest set of
 //!    mutually consistent loops, which are the ones in the graph;
@@ -150,6 +152,11 @@ pub struct Loop {
 pub enum Rejection {
     /// A cloud was too small or degenerate to register.
     Unregistrable,
+    /// By odometry the keyframes are farther apart than any fit within the verification's reach
+    /// could agree with (not registered).
+    Unreachable,
+    /// The fit moved farther from its start than the verification reaches.
+    Wandered,
     /// Too little of the keyframe lay on the candidate's submap after the fit.
     LowOverlap,
     /// The fit left a translation direction nearly free (a corridor, a row of shelves).
@@ -164,6 +171,8 @@ impl fmt::Display for Rejection {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {
             Rejection::Unregistrable => "too few points to register",
+            Rejection::Unreachable => "farther apart by odometry than a fit within reach could agree with",
+            Rejection::Wandered => "the fit moved beyond the verification's reach",
             Rejection::LowOverlap => "low overlap after registration",
             Rejection::Degenerate => "registration leaves a direction unconstrained",
             Rejection::Odometry => "disagrees with the odometry beyond its drift",
@@ -308,12 +317,21 @@ impl LoopCloser {
     /// Steps 3 and the odometry half of 4: whether the candidate became a verified loop.
     fn check(&mut self, a: usize, b: usize, descriptor_distance: f64, yaw: f64) -> bool {
         let initial = Isometry3::from_parts(Default::default(), UnitQuaternion::from_scaled_axis(Vector3::z() * yaw));
+        let reject = |reason, fit| Rejected { a, b, descriptor_distance, fit, reason };
+        let (pa, pb) = (&self.places[a], &self.places[b]);
+        let path_m = (pb.path_m - pa.path_m).abs();
+        let reach_m = self.config.verify.reach_m;
+        if !consistency::reachable(&pa.odometry, &pb.odometry, path_m, &initial, reach_m, &self.config.consistency) {
+            tracing::debug!(a, b, descriptor_distance, "loop candidate out of reach by odometry");
+            self.rejected.push(reject(Rejection::Unreachable, None));
+            return false;
+        }
         let submap = self.submap(a);
         let keyframe = self.gaussians_of(b);
         let verdict = verify::verify(&keyframe, &submap, &initial, &self.config.verify);
-        let reject = |reason, fit| Rejected { a, b, descriptor_distance, fit, reason };
         let rejected = match verdict {
             Verdict::Unregistrable => reject(Rejection::Unregistrable, None),
+            Verdict::Wandered(fit) => reject(Rejection::Wandered, Some(fit)),
             Verdict::LowOverlap(fit) => reject(Rejection::LowOverlap, Some(fit)),
             Verdict::Degenerate(fit) => reject(Rejection::Degenerate, Some(fit)),
             Verdict::Loop(fit) => {

@@ -7,7 +7,7 @@
 use nalgebra::Isometry3;
 use serde::Serialize;
 
-use super::{LoopCloser, LoopConfig, LoopError, Rejected};
+use super::{LoopCloser, LoopConfig, LoopError, Rejected, Rejection};
 use crate::odometry::Frame;
 
 /// A pass's loop closure.
@@ -68,6 +68,8 @@ pub struct LoopSummary {
     pub accepted: usize,
     /// Candidates verified or tested and left out.
     pub rejected: usize,
+    /// Of them, left out before registration: out of reach by odometry.
+    pub unreachable: usize,
     /// Optimisations run.
     pub optimisations: usize,
     /// Median and 95th percentile milliseconds per keyframe of description, search and
@@ -151,10 +153,12 @@ impl LoopTrack {
             keyframes: self.closer.places().len(),
             accepted: self.closer.loops().count(),
             rejected: self.closer.rejected().len(),
+            unreachable: self.closer.rejected().iter().filter(|r| r.reason == Rejection::Unreachable).count(),
             optimisations: self.optimise_ms.len(),
             detect_ms_median: at(0.5),
             detect_ms_p95: at(0.95),
-            optimise_ms_total: self.optimise_ms.iter().sum(),
+            // An empty f64 sum is -0.0; adding 0.0 makes it 0.
+            optimise_ms_total: self.optimise_ms.iter().sum::<f64>() + 0.0,
         }
     }
 }
@@ -176,6 +180,8 @@ pub struct LoopJudgement {
     /// The largest rotation error of the odometry between the same keyframes (deg).
     pub worst_odometry_rotation_deg: f64,
     /// Rejected candidates whose fit was right after all (missed loops): the price of the tests.
+    /// A candidate left out as out of reach counts when its true pose was within the
+    /// verification's reach of the fit's start (a right fit could have been found).
     pub missed: usize,
 }
 
@@ -204,9 +210,17 @@ impl LoopTrack {
                 judgement.worst_odometry_rotation_deg = judgement.worst_odometry_rotation_deg.max(o.rotation_deg);
             }
         }
+        let reach_m = self.closer.config().verify.reach_m;
         for r in self.closer.rejected() {
-            let Some(fit) = &r.fit else { continue };
-            judgement.missed += usize::from(error(r.a, r.b, &fit.transform).is_some_and(|e| !wrong(&e)));
+            let right = match (&r.fit, r.reason) {
+                (Some(fit), _) => error(r.a, r.b, &fit.transform).is_some_and(|e| !wrong(&e)),
+                // The fit starts at zero translation (the descriptor's yaw).
+                (None, Rejection::Unreachable) => {
+                    error(r.a, r.b, &Isometry3::identity()).is_some_and(|e| e.translation_m <= reach_m + FALSE_LOOP.0)
+                }
+                (None, _) => false,
+            };
+            judgement.missed += usize::from(right);
         }
         judgement
     }

@@ -11,6 +11,11 @@
 //!    weak in any direction compared with its strongest: in a long corridor or between identical
 //!    shelves the fit slides, and a loop along the slide direction would be a guess.
 //!
+//! A fit is trusted only within `reach_m` of its start: from farther the coarse stage does not
+//! find its way, and a fit that moved farther has slid along something. That bound is what lets the
+//! loop closure refuse, before registering, a candidate whose odometry puts it farther away than any
+//! fit within reach could agree with.
+//!
 //! A loop that passes (and agrees with the odometry) is then [`refine`]d: GICP again from its fit,
 //! between the merged neighbourhoods of both keyframes, covariances estimated on the merged
 //! points. One sweep of a 16-beam sensor puts the floor on rings a metre apart, so a point's
@@ -66,6 +71,14 @@ pub struct VerifyConfig {
     /// five sweeps fill the floor between a 16-beam sensor's rings; 2 left loops on the simulated
     /// warehouses 0.1-0.2 deg off in pitch. 0 turns the refinement off.
     pub refine_keyframes: usize,
+    /// How far a fit may move from its start (m); a fit that moved farther is refused
+    /// ([`Verdict::Wandered`]), and a candidate the odometry puts farther than this beyond what it
+    /// can have drifted is not registered at all (`consistency::reachable`). Default 16 m, four
+    /// times the coarse stage's coarsest correspondences (scale it with them): started 2-16 m off
+    /// the truth in 8 directions, the verification found the true pose of KITTI 08's reverse
+    /// revisit from up to 12 m (4 of 8 starts there), of simulated revisits from up to 10-12 m, and
+    /// from 16 m never (0 of 32 starts, 2026-11-28).
+    pub reach_m: f64,
 }
 
 impl Default for VerifyConfig {
@@ -81,6 +94,7 @@ impl Default for VerifyConfig {
             min_constraint: 0.02,
             sigma_m: 0.05,
             refine_keyframes: 4,
+            reach_m: 16.0,
         }
     }
 }
@@ -107,6 +121,8 @@ pub enum Verdict {
     Loop(Fit),
     /// A cloud is too small or degenerate to register.
     Unregistrable,
+    /// The fit moved farther from its start than the verification reaches.
+    Wandered(Fit),
     /// Too little of the keyframe lies on the submap after the fit.
     LowOverlap(Fit),
     /// The fit leaves a translation direction nearly free.
@@ -147,7 +163,11 @@ pub fn verify(
     else {
         return Verdict::Unregistrable;
     };
-    judge(judged_fit(keyframe, submap, &result, config), config)
+    let fit = judged_fit(keyframe, submap, &result, config);
+    if (fit.transform.translation.vector - initial.translation.vector).norm() > config.reach_m {
+        return Verdict::Wandered(fit);
+    }
+    judge(fit, config)
 }
 
 /// Whether both clouds have the points a covariance and a fit need.

@@ -51,7 +51,7 @@ pub fn loops(args: LoopsArgs) -> Result<()> {
         args.sources
     };
     let mut table = String::from(
-        "| source | scans | path | MR ATE | EMR ATE | loops | false loops | worst loop error | odometry between them, worst | rejected (right after all) | loop ms/keyframe (median, p95) | optimisations (total ms) |\n\
+        "| source | scans | path | MR ATE | EMR ATE | loops | false loops | worst loop error | odometry between them, worst | rejected: registered + not (right after all) | loop ms/keyframe (median, p95) | optimisations (total ms) |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for source in &sources {
@@ -83,7 +83,7 @@ pub fn loops(args: LoopsArgs) -> Result<()> {
         let s = track.summary();
         writeln!(
             table,
-            "| {name} | {} | {:.0} m | {} | {} | {} | {} | {:.1} cm, {:.2} deg | {:.1} cm, {:.2} deg | {} ({}) | {:.1}, {:.1} | {} ({:.0}) |",
+            "| {name} | {} | {:.0} m | {} | {} | {} | {} | {:.1} cm, {:.2} deg | {:.1} cm, {:.2} deg | {} + {} ({}) | {:.1}, {:.1} | {} ({:.0}) |",
             pass.len(),
             mr.path_length_m,
             ate(&mr.ate),
@@ -94,7 +94,8 @@ pub fn loops(args: LoopsArgs) -> Result<()> {
             judged.worst_rotation_deg,
             judged.worst_odometry_translation_m * 100.0,
             judged.worst_odometry_rotation_deg,
-            s.rejected,
+            s.rejected - s.unreachable,
+            s.unreachable,
             judged.missed,
             s.detect_ms_median,
             s.detect_ms_p95,
