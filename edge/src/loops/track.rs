@@ -149,11 +149,13 @@ impl LoopTrack {
         let mut ms = self.detect_ms.clone();
         ms.sort_by(f64::total_cmp);
         let at = |q: f64| if ms.is_empty() { 0.0 } else { ms[((ms.len() - 1) as f64 * q).round() as usize] };
+        // Built anew at each call (the outvoted loops added to the refused ones): once here.
+        let rejected = self.closer.rejected();
         LoopSummary {
             keyframes: self.closer.places().len(),
             accepted: self.closer.loops().count(),
-            rejected: self.closer.rejected().len(),
-            unreachable: self.closer.rejected().iter().filter(|r| r.reason == Rejection::Unreachable).count(),
+            rejected: rejected.len(),
+            unreachable: rejected.iter().filter(|r| r.reason == Rejection::Unreachable).count(),
             optimisations: self.optimise_ms.len(),
             detect_ms_median: at(0.5),
             detect_ms_p95: at(0.95),
