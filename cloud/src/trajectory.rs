@@ -1,6 +1,6 @@
 //! Trajectories: KITTI and TUM text formats, and the accuracy metrics ATE and RPE.
 
-use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion};
+use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
 use crate::alignment::{AlignmentError, umeyama};
 use crate::se3::{from_kitti_row, to_kitti_row};
@@ -195,6 +195,27 @@ pub fn ate(gt: &[Isometry3<f64>], est: &[Isometry3<f64>], align: bool) -> Result
     })
 }
 
+/// How far from a pose the points standing for its view lie, metres ([`map_fit`]): about where
+/// a LiDAR's returns in a building fall, so that a rotation error weighs as it moves the map.
+pub const VIEW_LEVER_M: f64 = 10.0;
+
+/// The rigid transform that best carries a robot's estimated map onto the truth: each pose stands
+/// for what it sees by its position and the points [`VIEW_LEVER_M`] along its six axis directions,
+/// and the estimated ones are fitted onto the true ones (Umeyama). Unlike [`ate`]'s alignment of
+/// positions alone, it sees rotation errors about the path (a tilt along a straight run). It is the
+/// best any rigid placement of the map can do; what is left is the map's own shape error.
+pub fn map_fit(gt: &[Isometry3<f64>], est: &[Isometry3<f64>]) -> Result<Isometry3<f64>, TrajectoryError> {
+    if gt.len() != est.len() || gt.is_empty() {
+        return Err(TrajectoryError::Pairing(format!("{} vs {} poses", gt.len(), est.len())));
+    }
+    let view = |poses: &[Isometry3<f64>]| -> Vec<Point3<f64>> {
+        let levers =
+            [Vector3::zeros(), Vector3::x(), -Vector3::x(), Vector3::y(), -Vector3::y(), Vector3::z(), -Vector3::z()];
+        poses.iter().flat_map(|p| levers.map(|l| p * Point3::from(l * VIEW_LEVER_M))).collect()
+    };
+    Ok(umeyama(&view(est), &view(gt))?)
+}
+
 /// Relative pose error, KITTI style.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Rpe {
@@ -266,6 +287,21 @@ mod tests {
         assert!((a.rmse - (0.25f64 / 3.0).sqrt()).abs() < 1e-12);
         assert!((a.mean - 0.7 / 3.0).abs() < 1e-12);
         assert!((a.max - 0.4).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_map_fit_finds_a_tilt_along_a_straight_run_that_positions_alone_cannot() {
+        // A straight run whose map is rolled 0.3 deg about the path and shifted: positions alone
+        // are collinear (no rotation about their line), the views are not.
+        let gt = straight(50, 0.5);
+        let error = Isometry3::new(Vector3::new(0.02, -0.05, 0.03), Vector3::new(0.3f64.to_radians(), 0.0, 0.0));
+        let est: Vec<_> = gt.iter().map(|p| error * p).collect();
+        assert!(matches!(ate(&gt, &est, true), Err(TrajectoryError::Alignment(_))));
+        let fit = map_fit(&gt, &est).unwrap();
+        let left = fit * error;
+        assert!(left.translation.vector.norm() < 1e-9, "{left:?}");
+        assert!(left.rotation.angle() < 1e-9, "{left:?}");
+        assert!(map_fit(&gt, &est[1..]).is_err());
     }
 
     #[test]

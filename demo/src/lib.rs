@@ -134,6 +134,11 @@ pub struct RobotResult {
     pub global_ate: Option<Ate>,
     /// Placement error against the truth: metres and degrees.
     pub placement_error: Option<(f64, f64)>,
+    /// The placement error a perfect rigid merge would leave, metres and degrees: this robot's and
+    /// the reference robot's maps each placed by its best rigid fit onto the truth
+    /// ([`trajectory::map_fit`]). What it holds is the maps' own shape error (odometry), which no
+    /// rigid placement removes; `placement_error` above it is the merge's.
+    pub placement_floor: Option<(f64, f64)>,
     /// The robot's odometry frame in the global frame, estimated and true, when it was merged.
     pub frame: Option<GlobalFrame>,
     /// Published confidence and status.
@@ -304,6 +309,7 @@ async fn wait_station(station: &Station, sent: &BTreeMap<u32, SourceDone>) -> bo
 /// Scores each robot against the simulator's truth.
 fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotResult> {
     let reference_start = summaries.get(&map.reference_robot).and_then(|s| s.ground_truth.first().copied().flatten());
+    let reference_fit = summaries.get(&map.reference_robot).and_then(map_fit);
     summaries
         .iter()
         .map(|(&robot, s)| {
@@ -323,9 +329,9 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotRe
             // The station places the keyframes at their optimised poses: the trajectory it places
             // is the corrected one.
             let global_ate = frame.map(|f| ate(&moved(&truth, &f.truth), &moved(&corrected, &f.placed), false));
-            let placement_error = frame.map(|f| {
-                let d = f.placed.inverse() * f.truth;
-                (d.translation.vector.norm(), d.rotation.angle().to_degrees())
+            let placement_error = frame.map(|f| metres_and_degrees(&(f.placed.inverse() * f.truth)));
+            let placement_floor = frame.zip(reference_fit).zip(map_fit(s)).map(|((f, reference), own)| {
+                metres_and_degrees(&(rigid_floor(&f.truth, &reference, &own).inverse() * f.truth))
             });
             RobotResult {
                 robot,
@@ -336,6 +342,7 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotRe
                 corrected_ate,
                 global_ate,
                 placement_error,
+                placement_floor,
                 frame,
                 confidence: placement.map_or(0.0, |p| p.confidence),
                 merged,
@@ -343,6 +350,25 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotRe
             }
         })
         .collect()
+}
+
+/// Translation (m) and rotation (deg) of a pose error.
+fn metres_and_degrees(d: &Isometry3<f64>) -> (f64, f64) {
+    (d.translation.vector.norm(), d.rotation.angle().to_degrees())
+}
+
+/// The robot's best rigid fit of its loop-closed trajectory onto the truth in its own frame.
+fn map_fit(s: &NodeSummary) -> Option<Isometry3<f64>> {
+    trajectory::map_fit(&truth_in_own_frame(s), &s.corrected_poses()).ok()
+}
+
+/// The placement of a robot's odometry frame in the reference robot's that a perfect rigid merge
+/// would find: the one that puts the robot's map where the reference robot's map has its
+/// surfaces, each map being off the truth by its best rigid fit (`own`, `reference`, estimated to
+/// true). With `truth` the true placement, true points of the robot are `truth * own * p` in the
+/// reference's true frame, `reference⁻¹ * truth * own * p` in its estimated one.
+fn rigid_floor(truth: &Isometry3<f64>, reference: &Isometry3<f64>, own: &Isometry3<f64>) -> Isometry3<f64> {
+    reference.inverse() * truth * own
 }
 
 /// Poses moved into another frame.
@@ -415,6 +441,7 @@ fn summary_json(config: &DemoConfig, map: &GlobalMap, robots: &[RobotResult], ti
                 "merged": r.merged,
                 "confidence": r.confidence,
                 "placement_error": r.placement_error.map(|(m, d)| json!({"m": m, "deg": d})),
+                "placement_floor": r.placement_floor.map(|(m, d)| json!({"m": m, "deg": d})),
                 "loops": r.loops,
                 "odometry_ate": {"aligned": ate_json(&r.odometry_ate.0), "unaligned": ate_json(&r.odometry_ate.1)},
                 "loop_closed_ate": {"aligned": ate_json(&r.corrected_ate.0), "unaligned": ate_json(&r.corrected_ate.1)},
@@ -440,4 +467,57 @@ fn write_json(path: &Path, value: &Value) -> Result<(), DemoError> {
 
 fn write_error(path: &Path, e: impl std::fmt::Display) -> DemoError {
     DemoError::Write { path: path.to_owned(), message: e.to_string() }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    /// A robot's true path in its own frame: a turning run 40 m long.
+    fn path(turn: f64) -> Vec<Isometry3<f64>> {
+        let mut pose = Isometry3::identity();
+        (0..80)
+            .map(|_| {
+                let now = pose;
+                pose *= Isometry3::new(Vector3::new(0.5, 0.0, 0.0), Vector3::new(0.0, 0.0, turn));
+                now
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_rigid_floor_is_what_the_maps_own_errors_leave_of_the_true_placement() {
+        // Each robot's map is off the truth by a rigid error of its own (a tilt and a shift about
+        // its start), the second robot starts 36 m away and turned a quarter.
+        let truth = Isometry3::new(Vector3::new(35.9, 0.4, 0.0), Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2));
+        let reference_error =
+            Isometry3::new(Vector3::new(0.01, 0.0, -0.02), Vector3::new(0.0, 0.2f64.to_radians(), 0.0));
+        let own_error = Isometry3::new(Vector3::new(0.0, 0.02, 0.03), Vector3::new(0.3f64.to_radians(), 0.0, 0.0));
+        let (truth_1, truth_2) = (path(0.01), path(-0.02));
+        let est_1: Vec<_> = truth_1.iter().map(|p| reference_error * p).collect();
+        let est_2: Vec<_> = truth_2.iter().map(|p| own_error * p).collect();
+        let reference = trajectory::map_fit(&truth_1, &est_1).unwrap();
+        let own = trajectory::map_fit(&truth_2, &est_2).unwrap();
+        let floor = rigid_floor(&truth, &reference, &own);
+        // Where the maps' surfaces coincide: the second map's points, as estimated, land on the
+        // first's as estimated.
+        for (t2, e2) in truth_2.iter().zip(&est_2) {
+            let surface = t2 * nalgebra::Point3::new(5.0, 2.0, 1.0);
+            let estimated_in_reference = reference_error * truth * surface;
+            let merged = floor * e2 * (t2.inverse() * surface);
+            assert!((merged - estimated_in_reference).norm() < 1e-9);
+        }
+        let (m, deg) = metres_and_degrees(&(floor.inverse() * truth));
+        let expected = own_error * truth.inverse() * reference_error.inverse() * truth;
+        let (m_expected, deg_expected) = metres_and_degrees(&expected);
+        assert!((m - m_expected).abs() < 1e-9 && (deg - deg_expected).abs() < 1e-9, "{m} {deg}");
+        // The tilts (0.3 deg about the second robot's heading, 0.2 about the reference's
+        // sideways axis: the same axis here) partly cancel, and 36 m from the reference start
+        // what is left moves the placement by decimetres, far above either map's shift (2-4 cm).
+        assert!((deg - 0.1).abs() < 1e-6 && m > 0.1, "{m} {deg}");
+        // Maps without error leave nothing.
+        let exact = rigid_floor(&truth, &Isometry3::identity(), &Isometry3::identity());
+        assert!(metres_and_degrees(&(exact.inverse() * truth)).0 < 1e-12);
+    }
 }
