@@ -155,9 +155,9 @@ mod tests {
         assert_eq!(cloud.heap_bytes(), 1000 * 12);
         cloud.intensity = Some(vec![0.0; 1000]);
         assert_eq!(cloud.heap_bytes(), 1000 * 16);
-        // Per point: f64 position, f64 covariance, and the tree's f32 copy and index.
+        // Per point: f32 position, f32 plane normal, and the tree's f32 copy and index.
         let gaussians = GaussianCloud::new(&grid(1000), 10);
-        assert!(gaussians.heap_bytes() >= 1000 * (24 + 72 + 16), "{}", gaussians.heap_bytes());
+        assert!(gaussians.heap_bytes() >= 1000 * (12 + 12 + 16), "{}", gaussians.heap_bytes());
         // A voxel map grows with its cells, not with the points that fall in them.
         let mut map = VoxelMap::new(1.0).unwrap();
         map.insert(grid(1000));

@@ -2,11 +2,11 @@
 //! and the normal equations of all correspondences at one pose (summed as [`crate::gauss_newton`]
 //! sums every system: per block, blocks in order).
 
-use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 
 use super::covariance::PLANE_EPSILON;
-use super::target::{GaussianCloud, Target};
+use super::target::{GaussianCloud, PackedCovariance, Target};
 use crate::gauss_newton::{self, BLOCK, NormalEquations, Sums, reduce_in_order, sum_blocks};
 
 /// A cost term `eᵀ W e` on the residual `e = μ_target − T p_source`; the factor chooses `W`.
@@ -16,7 +16,7 @@ pub trait Factor: Sync {
     fn weight(
         &self,
         target_cov: &Matrix3<f64>,
-        source_cov: &Matrix3<f64>,
+        source_cov: &PackedCovariance,
         rotation: &Matrix3<f64>,
     ) -> Option<Matrix3<f64>>;
 }
@@ -26,8 +26,13 @@ pub trait Factor: Sync {
 pub struct GicpFactor;
 
 impl Factor for GicpFactor {
-    fn weight(&self, target_cov: &Matrix3<f64>, source_cov: &Matrix3<f64>, r: &Matrix3<f64>) -> Option<Matrix3<f64>> {
-        (target_cov + r * source_cov * r.transpose()).try_inverse()
+    fn weight(
+        &self,
+        target_cov: &Matrix3<f64>,
+        source_cov: &PackedCovariance,
+        r: &Matrix3<f64>,
+    ) -> Option<Matrix3<f64>> {
+        (target_cov + source_cov.rotated(r)).try_inverse()
     }
 }
 
@@ -39,7 +44,7 @@ impl Factor for GicpFactor {
 pub struct PointToPlaneFactor;
 
 impl Factor for PointToPlaneFactor {
-    fn weight(&self, target_cov: &Matrix3<f64>, _: &Matrix3<f64>, _: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    fn weight(&self, target_cov: &Matrix3<f64>, _: &PackedCovariance, _: &Matrix3<f64>) -> Option<Matrix3<f64>> {
         Some((Matrix3::identity() - target_cov) / (1.0 - PLANE_EPSILON))
     }
 }
@@ -92,11 +97,11 @@ pub(crate) struct Match<'a> {
     /// Index of the target Gaussian.
     target: u32,
     /// The source point `p`.
-    point: &'a Vector3<f64>,
+    point: Vector3<f64>,
     /// `T p`.
     placed: Vector3<f64>,
     /// The source point's covariance.
-    covariance: &'a Matrix3<f64>,
+    covariance: &'a PackedCovariance,
 }
 
 /// The residual `e = μ_target − T p` at a fixed pose, weighed by a [`Factor`]: GICP, VGICP (the same
@@ -121,7 +126,7 @@ impl<'a, T: Target, F: Factor> PointToGaussian<'a, T, F> {
     /// The weight and residual of a correspondence; `None` when the factor drops it.
     #[inline(always)]
     fn weighed(&self, m: &Match<'a>) -> Option<(Matrix3<f64>, Vector3<f64>)> {
-        let w = self.factor.weight(self.target.covariance(m.target), m.covariance, &self.rotation)?;
+        let w = self.factor.weight(&self.target.covariance(m.target), m.covariance, &self.rotation)?;
         Some((w, self.target.mean(m.target) - m.placed))
     }
 }
@@ -133,7 +138,7 @@ impl<'a, T: Target, F: Factor> gauss_newton::Factor for PointToGaussian<'a, T, F
     #[inline(always)]
     fn add(&self, m: &Match<'a>, eq: &mut NormalEquations<SquaredDistance>) {
         let Some((w, e)) = self.weighed(m) else { return };
-        eq.add_point(m.point, &e, &w, &self.rotation);
+        eq.add_point(&m.point, &e, &w, &self.rotation);
         eq.sums.0 += e.norm_squared();
     }
 }
@@ -151,12 +156,13 @@ pub(crate) fn linearize<T: Target, F: Factor>(
     matches: &mut [u32],
 ) -> NormalEquations<SquaredDistance> {
     let gaussians = PointToGaussian::new(target, factor, pose);
-    let blocks =
-        matches.par_chunks_mut(BLOCK).zip(source.points.par_chunks(BLOCK).zip(source.covariances.par_chunks(BLOCK)));
+    let (points, covariances) = source.parts();
+    let blocks = matches.par_chunks_mut(BLOCK).zip(points.par_chunks(BLOCK).zip(covariances.par_chunks(BLOCK)));
     sum_blocks(blocks, |(matches, (points, covariances))| {
         let mut eq = NormalEquations::zero();
         for ((m, point), covariance) in matches.iter_mut().zip(points).zip(covariances) {
-            let placed = gaussians.place(point);
+            let point = point.coords.cast::<f64>();
+            let placed = gaussians.place(&point);
             *m = target.nearest(&placed, max_dist_sq).unwrap_or(NO_MATCH);
             if *m != NO_MATCH {
                 gauss_newton::Factor::add(&gaussians, &Match { target: *m, point, placed, covariance }, &mut eq);
@@ -167,7 +173,7 @@ pub(crate) fn linearize<T: Target, F: Factor>(
 }
 
 /// One block of [`evaluate`]: correspondences, source points and their covariances.
-type SourceBlock<'a> = (&'a [u32], (&'a [Vector3<f64>], &'a [Matrix3<f64>]));
+type SourceBlock<'a> = (&'a [u32], (&'a [Point3<f32>], &'a [PackedCovariance]));
 
 /// The cost `Σ eᵀ W e` at `pose` over the correspondences fixed by the last [`linearize`].
 pub(crate) fn evaluate<T: Target, F: Factor>(
@@ -178,15 +184,16 @@ pub(crate) fn evaluate<T: Target, F: Factor>(
     matches: &[u32],
 ) -> f64 {
     let gaussians = PointToGaussian::new(target, factor, pose);
-    let blocks =
-        matches.par_chunks(BLOCK).zip(source.points.par_chunks(BLOCK).zip(source.covariances.par_chunks(BLOCK)));
+    let (points, covariances) = source.parts();
+    let blocks = matches.par_chunks(BLOCK).zip(points.par_chunks(BLOCK).zip(covariances.par_chunks(BLOCK)));
     let block_cost = |(matches, (points, covariances)): SourceBlock| {
         let mut cost = 0.0;
         for ((&target, point), covariance) in matches.iter().zip(points).zip(covariances) {
             if target == NO_MATCH {
                 continue;
             }
-            let m = Match { target, point, placed: gaussians.place(point), covariance };
+            let point = point.coords.cast::<f64>();
+            let m = Match { target, point, placed: gaussians.place(&point), covariance };
             if let Some((w, e)) = gaussians.weighed(&m) {
                 cost += e.dot(&(w * e));
             }

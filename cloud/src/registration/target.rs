@@ -2,7 +2,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
-use super::covariance::estimate_covariances_with;
+use super::covariance::{PLANE_EPSILON, estimate_covariances_with};
 use crate::kdtree::{KdTree, gate_radius};
 use crate::memory::{HeapSize, vec_bytes};
 
@@ -12,17 +12,74 @@ pub trait Target: Sync {
     /// The Gaussian whose mean is nearest to `p`, if within `max_dist_sq` (m²).
     fn nearest(&self, p: &Vector3<f64>, max_dist_sq: f64) -> Option<u32>;
     /// Mean of Gaussian `i`.
-    fn mean(&self, i: u32) -> &Vector3<f64>;
+    fn mean(&self, i: u32) -> Vector3<f64>;
     /// Covariance of Gaussian `i`.
-    fn covariance(&self, i: u32) -> &Matrix3<f64>;
+    fn covariance(&self, i: u32) -> Matrix3<f64>;
+}
+
+/// A plane-regularised covariance `C = I − (1 − ε) n nᵀ` kept as its normal `n` in single
+/// precision (zero for a shapeless point, `C = I`): 12 bytes where the f64 matrix takes 72.
+///
+/// Every covariance a [`GaussianCloud`] holds has that form ([`super::covariance::regularise`]),
+/// and a rotated one keeps it, so the normal is all there is to keep. A map's Gaussians live as
+/// long as the map: the station keeps two sets per robot, and in f64 they were half of all it held
+/// for a robot. The matrix rebuilt in f64 from the f32 normal is exactly of the regularised form
+/// (rounding turns the plane by 1e-7 rad), where rounding the matrix's entries would move its ε
+/// eigenvalue, which the GICP weight inverts.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PackedCovariance([f32; 3]);
+
+impl PackedCovariance {
+    /// The normal of `c`, a plane-regularised covariance or the identity (anything else is
+    /// outside what a [`GaussianCloud`] holds).
+    pub fn pack(c: &Matrix3<f64>) -> Self {
+        // n nᵀ = (I − C) / (1 − ε); its largest diagonal entry picks a column that is n scaled.
+        let outer = (Matrix3::identity() - c) / (1.0 - PLANE_EPSILON);
+        let (j, largest) = (0..3).map(|j| (j, outer[(j, j)])).fold((0, f64::MIN), |m, x| if x.1 > m.1 { x } else { m });
+        if largest < 0.25 {
+            return Self::default();
+        }
+        let n = outer.column(j) / largest.sqrt();
+        debug_assert!((Self::plane(&n) - c).norm() < 1e-9, "not a plane-regularised covariance: {c}");
+        Self([n.x as f32, n.y as f32, n.z as f32])
+    }
+
+    /// The covariance in f64.
+    #[inline]
+    pub fn unpack(&self) -> Matrix3<f64> {
+        let n = Vector3::new(f64::from(self.0[0]), f64::from(self.0[1]), f64::from(self.0[2]));
+        let squared = n.norm_squared();
+        if squared == 0.0 {
+            return Matrix3::identity();
+        }
+        // n nᵀ / |n|²: the projector onto the f32 normal, exactly of the regularised form.
+        Matrix3::identity() - ((1.0 - PLANE_EPSILON) / squared) * n * n.transpose()
+    }
+
+    /// `R C Rᵀ`: the plane turned, formed from the turned normal (a sixth of the products).
+    #[inline]
+    pub fn rotated(&self, r: &Matrix3<f64>) -> Matrix3<f64> {
+        let n = Vector3::new(f64::from(self.0[0]), f64::from(self.0[1]), f64::from(self.0[2]));
+        let squared = n.norm_squared();
+        if squared == 0.0 {
+            return Matrix3::identity();
+        }
+        let turned = r * n;
+        Matrix3::identity() - ((1.0 - PLANE_EPSILON) / squared) * turned * turned.transpose()
+    }
+
+    fn plane(n: &Vector3<f64>) -> Matrix3<f64> {
+        Matrix3::identity() - (1.0 - PLANE_EPSILON) * n * n.transpose()
+    }
 }
 
 /// Points with their regularised neighbourhood covariances and a k-d tree: a GICP source or target.
+///
+/// Stored in single precision (points as the scans give them, covariances packed): 24 bytes a
+/// point instead of 96; every product of the cost is formed in f64 from them.
 pub struct GaussianCloud {
-    /// Positions in f64, the precision the cost is computed in.
-    pub points: Vec<Vector3<f64>>,
-    /// Regularised covariance of each point (see [`super::covariance::regularise`]).
-    pub covariances: Vec<Matrix3<f64>>,
+    points: Vec<Point3<f32>>,
+    covariances: Vec<PackedCovariance>,
     tree: KdTree,
 }
 
@@ -30,32 +87,49 @@ impl GaussianCloud {
     /// Estimates each point's covariance from its `neighbours` nearest points and keeps the tree.
     pub fn new(points: &[Point3<f32>], neighbours: usize) -> Self {
         let tree = KdTree::from_points(points);
-        let covariances = estimate_covariances_with(&tree, points, neighbours);
-        let points = points.iter().map(|p| p.coords.cast::<f64>()).collect();
-        GaussianCloud { points, covariances, tree }
+        let covariances =
+            estimate_covariances_with(&tree, points, neighbours).iter().map(PackedCovariance::pack).collect();
+        GaussianCloud { points: points.to_vec(), covariances, tree }
     }
 
     /// Points with covariances estimated elsewhere (e.g. each in its own cloud's frame and moved
     /// here, [`GaussianCloud::transformed`]); builds the tree. `covariances` is truncated or padded
     /// with identities to the points' length.
-    pub fn from_parts(points: Vec<Vector3<f64>>, mut covariances: Vec<Matrix3<f64>>) -> Self {
-        covariances.resize(points.len(), Matrix3::identity());
-        let xyz: Vec<[f32; 3]> = points.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
-        GaussianCloud { tree: KdTree::new(&xyz), points, covariances }
+    pub fn from_parts(points: Vec<Vector3<f64>>, covariances: Vec<Matrix3<f64>>) -> Self {
+        let mut covariances: Vec<PackedCovariance> = covariances.iter().map(PackedCovariance::pack).collect();
+        covariances.resize(points.len(), PackedCovariance::pack(&Matrix3::identity()));
+        let points: Vec<Point3<f32>> = points.iter().map(|p| Point3::from(p.cast::<f32>())).collect();
+        GaussianCloud { tree: KdTree::from_points(&points), points, covariances }
     }
 
     /// The points and covariances moved by `pose` (`p ↦ T p`, `C ↦ R C Rᵀ`), without a tree: parts
     /// for [`GaussianCloud::from_parts`].
     pub fn transformed(&self, pose: &Isometry3<f64>) -> (Vec<Vector3<f64>>, Vec<Matrix3<f64>>) {
         let r = pose.rotation.to_rotation_matrix().into_inner();
-        let points = self.points.iter().map(|p| pose.rotation * p + pose.translation.vector).collect();
-        let covariances = self.covariances.iter().map(|c| r * c * r.transpose()).collect();
+        let points = (0..self.len()).map(|i| pose.rotation * self.point(i) + pose.translation.vector).collect();
+        let covariances = self.covariances.iter().map(|c| c.rotated(&r)).collect();
         (points, covariances)
     }
 
     /// The points in single precision.
     pub fn points_f32(&self) -> Vec<Point3<f32>> {
-        self.points.iter().map(|p| Point3::from(p.cast::<f32>())).collect()
+        self.points.clone()
+    }
+
+    /// Point `i` in f64.
+    pub fn point(&self, i: usize) -> Vector3<f64> {
+        self.points[i].coords.cast()
+    }
+
+    /// Covariance of point `i` in f64.
+    pub fn covariance_of(&self, i: usize) -> Matrix3<f64> {
+        self.covariances[i].unpack()
+    }
+
+    /// The points (single precision) and their packed covariances, in step: a registration
+    /// source's blocks.
+    pub(crate) fn parts(&self) -> (&[Point3<f32>], &[PackedCovariance]) {
+        (&self.points, &self.covariances)
     }
 
     /// Every `step`-th point with its covariance, as a registration source only: no tree is built,
@@ -98,11 +172,36 @@ impl Target for GaussianCloud {
         (f64::from(n.dist_sq) <= max_dist_sq).then_some(n.index as u32)
     }
 
-    fn mean(&self, i: u32) -> &Vector3<f64> {
-        &self.points[i as usize]
+    fn mean(&self, i: u32) -> Vector3<f64> {
+        self.point(i as usize)
     }
 
-    fn covariance(&self, i: u32) -> &Matrix3<f64> {
-        &self.covariances[i as usize]
+    fn covariance(&self, i: u32) -> Matrix3<f64> {
+        self.covariance_of(i as usize)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::registration::covariance::regularise;
+
+    #[test]
+    fn a_packed_covariance_keeps_what_a_registration_uses_of_it() {
+        // A plane patch tilted off every axis: the regularised shape the cost weighs.
+        let axis = Vector3::new(0.3, -0.5, 0.81).normalize();
+        let raw = Matrix3::identity() - axis * axis.transpose() * 0.999 + Matrix3::from_diagonal_element(1e-6);
+        let c = regularise(&raw);
+        let back = PackedCovariance::pack(&c).unpack();
+        assert!((back - c).norm() < 1e-6, "{back} vs {c}");
+        // The GICP weight (C + C)⁻¹ inverts the ε eigenvalue: it must move as little.
+        let (inverse, inverse_back) = ((c + c).try_inverse().unwrap(), (back + back).try_inverse().unwrap());
+        assert!((inverse_back - inverse).norm() < 1e-5 * inverse.norm(), "{inverse_back} vs {inverse}");
+        // Shapeless points stay shapeless, and so does the plane turned by a rotation.
+        assert_eq!(PackedCovariance::pack(&Matrix3::identity()).unpack(), Matrix3::identity());
+        let r = nalgebra::Rotation3::from_euler_angles(0.4, -1.1, 2.0).into_inner();
+        let turned = r * c * r.transpose();
+        assert!((PackedCovariance::pack(&turned).unpack() - turned).norm() < 1e-6);
+        assert!((PackedCovariance::pack(&c).rotated(&r) - turned).norm() < 1e-6);
     }
 }

@@ -62,7 +62,8 @@ pub struct GaussianVoxelMap {
 impl GaussianVoxelMap {
     /// Merges the points and covariances of `cloud` into voxels of edge `resolution` (metres).
     pub fn new(cloud: &GaussianCloud, resolution: f64, search: VoxelSearch) -> Self {
-        Self::from_gaussians(&cloud.points, &cloud.covariances, resolution, search)
+        let gaussians = (0..cloud.len()).map(|i| (cloud.point(i), cloud.covariance_of(i)));
+        Self::merge(gaussians, resolution, search)
     }
 
     /// Merges point Gaussians (equal-length slices) into voxels of edge `resolution` (metres).
@@ -72,12 +73,21 @@ impl GaussianVoxelMap {
         resolution: f64,
         search: VoxelSearch,
     ) -> Self {
+        Self::merge(points.iter().copied().zip(covariances.iter().copied()), resolution, search)
+    }
+
+    /// Merges point Gaussians (mean, covariance) into voxels of edge `resolution` (metres).
+    fn merge(
+        gaussians: impl Iterator<Item = (Vector3<f64>, Matrix3<f64>)>,
+        resolution: f64,
+        search: VoxelSearch,
+    ) -> Self {
         let inv_resolution = 1.0 / resolution;
         let mut index: FxHashMap<Key, u32> = FxHashMap::default();
         let mut voxels: Vec<GaussianVoxel> = Vec::new();
-        for (p, c) in points.iter().zip(covariances) {
+        for (p, c) in gaussians {
             let next = voxels.len() as u32;
-            let slot = *index.entry(key_of(p, inv_resolution)).or_insert(next);
+            let slot = *index.entry(key_of(&p, inv_resolution)).or_insert(next);
             if slot == next {
                 voxels.push(GaussianVoxel { mean: Vector3::zeros(), covariance: Matrix3::zeros(), count: 0 });
             }
@@ -134,12 +144,12 @@ impl Target for GaussianVoxelMap {
         best.map(|(i, _)| i)
     }
 
-    fn mean(&self, i: u32) -> &Vector3<f64> {
-        &self.voxels[i as usize].mean
+    fn mean(&self, i: u32) -> Vector3<f64> {
+        self.voxels[i as usize].mean
     }
 
-    fn covariance(&self, i: u32) -> &Matrix3<f64> {
-        &self.voxels[i as usize].covariance
+    fn covariance(&self, i: u32) -> Matrix3<f64> {
+        self.voxels[i as usize].covariance
     }
 }
 

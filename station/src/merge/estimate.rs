@@ -485,7 +485,7 @@ fn ambiguity(alternative: &RunnerUp, inliers: usize, support: f64) -> f64 {
 fn mean_squared_gap(s: &GaussianCloud, q: &GaussianCloud, t: &Isometry3<f64>, voxel: f32) -> f64 {
     let cap = f64::from(voxel).powi(2);
     sampled_mean(s.len(), |i| {
-        let p = t * Point3::from(s.points[i]);
+        let p = t * Point3::from(s.point(i));
         q.nearest(&p.coords, cap).map_or(cap, |j| (q.mean(j) - p.coords).norm_squared().min(cap))
     })
 }
@@ -513,9 +513,9 @@ fn sampled_mean(len: usize, value: impl Fn(usize) -> f64 + Sync) -> f64 {
 fn mean_squared_plane_gap(source: &GaussianCloud, target: &GaussianCloud, t: &Isometry3<f64>, voxel: f32) -> f64 {
     let cap = f64::from(voxel).powi(2);
     sampled_mean(source.len(), |i| {
-        let p = t * Point3::from(source.points[i]);
+        let p = t * Point3::from(source.point(i));
         target.nearest(&p.coords, cap).map_or(cap, |j| {
-            let normal = symmetric_eigen3(target.covariance(j)).vectors.column(0).into_owned();
+            let normal = symmetric_eigen3(&target.covariance(j)).vectors.column(0).into_owned();
             normal.dot(&(p.coords - target.mean(j))).powi(2).min(cap)
         })
     })
