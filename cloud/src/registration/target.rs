@@ -47,29 +47,34 @@ impl PackedCovariance {
     /// The covariance in f64.
     #[inline]
     pub fn unpack(&self) -> Matrix3<f64> {
-        let n = Vector3::new(f64::from(self.0[0]), f64::from(self.0[1]), f64::from(self.0[2]));
-        let squared = n.norm_squared();
-        if squared == 0.0 {
-            return Matrix3::identity();
-        }
-        // n nᵀ / |n|²: the projector onto the f32 normal, exactly of the regularised form.
-        Matrix3::identity() - ((1.0 - PLANE_EPSILON) / squared) * n * n.transpose()
+        Self::plane(&self.normal())
     }
 
     /// `R C Rᵀ`: the plane turned, formed from the turned normal (a sixth of the products).
     #[inline]
     pub fn rotated(&self, r: &Matrix3<f64>) -> Matrix3<f64> {
-        let n = Vector3::new(f64::from(self.0[0]), f64::from(self.0[1]), f64::from(self.0[2]));
+        Self::plane(&(r * self.normal()))
+    }
+
+    /// The same plane turned by `r`, packed.
+    pub fn turned(&self, r: &Matrix3<f64>) -> Self {
+        let n = r * self.normal();
+        Self([n.x as f32, n.y as f32, n.z as f32])
+    }
+
+    fn normal(&self) -> Vector3<f64> {
+        Vector3::new(f64::from(self.0[0]), f64::from(self.0[1]), f64::from(self.0[2]))
+    }
+
+    /// `I − (1 − ε) n nᵀ / |n|²`: the projector onto `n` keeps the form exact for an f32 normal of
+    /// not quite unit length; the identity for `n = 0`.
+    #[inline]
+    fn plane(n: &Vector3<f64>) -> Matrix3<f64> {
         let squared = n.norm_squared();
         if squared == 0.0 {
             return Matrix3::identity();
         }
-        let turned = r * n;
-        Matrix3::identity() - ((1.0 - PLANE_EPSILON) / squared) * turned * turned.transpose()
-    }
-
-    fn plane(n: &Vector3<f64>) -> Matrix3<f64> {
-        Matrix3::identity() - (1.0 - PLANE_EPSILON) * n * n.transpose()
+        Matrix3::identity() - ((1.0 - PLANE_EPSILON) / squared) * n * n.transpose()
     }
 }
 
@@ -95,19 +100,18 @@ impl GaussianCloud {
     /// Points with covariances estimated elsewhere (e.g. each in its own cloud's frame and moved
     /// here, [`GaussianCloud::transformed`]); builds the tree. `covariances` is truncated or padded
     /// with identities to the points' length.
-    pub fn from_parts(points: Vec<Vector3<f64>>, covariances: Vec<Matrix3<f64>>) -> Self {
-        let mut covariances: Vec<PackedCovariance> = covariances.iter().map(PackedCovariance::pack).collect();
-        covariances.resize(points.len(), PackedCovariance::pack(&Matrix3::identity()));
+    pub fn from_parts(points: Vec<Vector3<f64>>, mut covariances: Vec<PackedCovariance>) -> Self {
+        covariances.resize(points.len(), PackedCovariance::default());
         let points: Vec<Point3<f32>> = points.iter().map(|p| Point3::from(p.cast::<f32>())).collect();
         GaussianCloud { tree: KdTree::from_points(&points), points, covariances }
     }
 
     /// The points and covariances moved by `pose` (`p ↦ T p`, `C ↦ R C Rᵀ`), without a tree: parts
     /// for [`GaussianCloud::from_parts`].
-    pub fn transformed(&self, pose: &Isometry3<f64>) -> (Vec<Vector3<f64>>, Vec<Matrix3<f64>>) {
+    pub fn transformed(&self, pose: &Isometry3<f64>) -> (Vec<Vector3<f64>>, Vec<PackedCovariance>) {
         let r = pose.rotation.to_rotation_matrix().into_inner();
         let points = (0..self.len()).map(|i| pose.rotation * self.point(i) + pose.translation.vector).collect();
-        let covariances = self.covariances.iter().map(|c| c.rotated(&r)).collect();
+        let covariances = self.covariances.iter().map(|c| c.turned(&r)).collect();
         (points, covariances)
     }
 
@@ -203,5 +207,6 @@ mod tests {
         let turned = r * c * r.transpose();
         assert!((PackedCovariance::pack(&turned).unpack() - turned).norm() < 1e-6);
         assert!((PackedCovariance::pack(&c).rotated(&r) - turned).norm() < 1e-6);
+        assert!((PackedCovariance::pack(&c).turned(&r).unpack() - turned).norm() < 1e-6);
     }
 }
