@@ -5,7 +5,8 @@
 use cloud::PointCloud;
 use cloud::formats::read_cloud;
 use cloud::global::{
-    FeatureError, Features, GlobalAlignment, GlobalConfig, GlobalError, Role, align, estimate, estimate_excluding,
+    Around, FeatureError, Features, GlobalAlignment, GlobalConfig, GlobalError, Role, align, estimate,
+    estimate_excluding,
 };
 use cloud::se3::{from_matrix, pose_error};
 use cloud::trajectory::Trajectory;
@@ -145,18 +146,25 @@ fn features_keep_no_neighbourhood_lists() {
     assert_eq!(features.surfels.tree.len(), features.surfels.points.len());
 }
 
-#[test]
-fn excluding_a_placement_finds_the_other_copy_of_a_place() {
-    // The target holds the same scan twice, 200 m apart: two equally good placements of the
-    // source. The first estimate picks one; excluding it, the next picks the other.
+/// A scan moved by `pose` (the source) and a target holding the scan twice, as it is and moved
+/// by the returned copy pose, 200 m away: the features of both.
+fn one_place_twice(pose: &Isometry3<f64>) -> (Isometry3<f64>, Features, Features) {
     let scan = kitti00(0);
     let copy = pose_from_yaw_deg(0.0, [200.0, 0.0, 0.0]);
     let mut target = scan.clone();
     target.points.extend(moved(&scan, &copy).points);
-    let pose = pose_from_yaw_deg(90.0, [5.37, -3.11, 0.23]);
-    let source = moved(&scan, &pose);
     let config = GlobalConfig::default();
-    let (s, t) = (Features::compute(&source, &config).unwrap(), Features::compute(&target, &config).unwrap());
+    let features = |cloud: &PointCloud| Features::compute(cloud, &config).unwrap();
+    (copy, features(&moved(&scan, pose)), features(&target))
+}
+
+#[test]
+fn excluding_a_placement_finds_the_other_copy_of_a_place() {
+    // The target holds the same scan twice, 200 m apart: two equally good placements of the
+    // source. The first estimate picks one; excluding it, the next picks the other.
+    let pose = pose_from_yaw_deg(90.0, [5.37, -3.11, 0.23]);
+    let (copy, s, t) = one_place_twice(&pose);
+    let config = GlobalConfig::default();
     let placements = [pose.inverse(), copy * pose.inverse()];
     let close = |found: &Isometry3<f64>| {
         placements.iter().position(|p| {
@@ -167,11 +175,43 @@ fn excluding_a_placement_finds_the_other_copy_of_a_place() {
     let first = estimate(&s, &t, &config).unwrap();
     let which = close(&first.transform).expect("the first estimate is one of the copies");
     let margin = 3.0 * config.ransac.inlier_distance;
-    let next = estimate_excluding(&s, &t, &config, &[first.transform], margin).unwrap();
+    let next = estimate_excluding(&s, &t, &config, &[first.transform], margin, None).unwrap();
     assert_eq!(close(&next.transform), Some(1 - which), "{:?}", next.transform);
     assert!(next.inliers.len() >= 15, "{} inliers", next.inliers.len());
     assert_eq!(next.matches, first.matches, "every correspondence still counts");
     // Excluding both copies leaves nothing consistent to find.
-    let rest = estimate_excluding(&s, &t, &config, &[first.transform, next.transform], margin);
+    let rest = estimate_excluding(&s, &t, &config, &[first.transform, next.transform], margin, None);
     assert!(rest.is_err() || rest.as_ref().unwrap().inliers.len() < 15, "{:?}", rest.map(|r| r.inliers.len()));
+}
+
+#[test]
+fn around_a_shared_place_the_estimate_finds_the_copy_there() {
+    // The target holds the same scan twice, 200 m apart; told where the source's place lies in the
+    // target (each copy's sensor position in turn), the estimate finds that copy, from the
+    // correspondences near both places only.
+    let pose = pose_from_yaw_deg(-60.0, [-4.2, 7.9, 0.1]);
+    let (copy, s, t) = one_place_twice(&pose);
+    let config = GlobalConfig::default();
+    let sensor = Point3::from(pose.translation.vector.cast::<f32>());
+    let all = estimate(&s, &t, &config).unwrap().matches.len();
+    for placement in [Isometry3::identity(), copy] {
+        let place = Point3::from(placement.translation.vector.cast::<f32>());
+        let around = Around { source: sensor, target: place, radius: 80.0 };
+        let found = estimate_excluding(&s, &t, &config, &[], 0.0, Some(&around)).unwrap();
+        let truth = placement * pose.inverse();
+        assert_pose_close!(&found.transform, &truth, MAX_TRANSLATION_M, MAX_ROTATION_DEG, "around {place}");
+        assert!(found.inliers.len() >= 15, "{} inliers", found.inliers.len());
+        // Only correspondences near both places count, so about half of the whole cloud's.
+        assert!(found.matches.len() < all, "{} of {all}", found.matches.len());
+        for c in &found.matches {
+            assert!((s.keypoint(c.source) - sensor).norm() <= 80.0);
+            assert!((t.keypoint(c.target) - place).norm() <= 80.0);
+        }
+    }
+    // A place neither cloud has anything at: no correspondence, no model.
+    let nowhere = Around { source: Point3::new(0.0, 0.0, 500.0), target: Point3::new(0.0, 0.0, 500.0), radius: 80.0 };
+    assert_eq!(
+        estimate_excluding(&s, &t, &config, &[], 0.0, Some(&nowhere)).map(|e| e.matches.len()),
+        Err(cloud::global::NoModel { correspondences: 0 })
+    );
 }

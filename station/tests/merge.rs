@@ -8,9 +8,10 @@ use sim::{RobotMaps, Scenario};
 use station::merge::merger::MergerStats;
 use station::merge::{
     Edge, INDOOR_MIN_CONFIDENCE, MapStatus, MergeConfig, MergeError, MergeReport, Merger, OUTDOOR_MIN_CONFIDENCE,
-    PairRejection, PairVerdict, Unmerged, merge,
+    PairRejection, PairVerdict, PreparedMap, Unmerged, estimate_pair, merge,
 };
-use testkit::{Rng, assert_pose_close, pose_from_yaw_deg};
+use station::pairwise::Around;
+use testkit::{assert_pose_close, pose_from_yaw_deg};
 
 /// Every robot's exact map of a built-in scenario.
 fn sim_maps(name: &str, stride: usize, voxel: f32) -> RobotMaps {
@@ -128,33 +129,9 @@ fn campus_four_robots_merge_into_one_frame() {
     assert!((OUTDOOR_MIN_CONFIDENCE..INDOOR_MIN_CONFIDENCE).contains(&weakest), "{scores:?}");
 }
 
-/// A synthetic yard: ground and boxes of random sizes, `per_m2` points per square metre.
+/// A synthetic yard (see [`testkit::yard`]).
 fn yard(seed: u64, size: f32, per_m2: f32) -> PointCloud {
-    let mut rng = Rng::xorshift64_star(Rng::spread(seed));
-    let mut unit = move || rng.f32();
-    let mut points = Vec::new();
-    let patch =
-        |points: &mut Vec<Point3<f32>>, unit: &mut dyn FnMut() -> f32, o: [f32; 3], a: [f32; 3], b: [f32; 3]| {
-            let area = {
-                let (a, b) = (nalgebra::Vector3::from(a), nalgebra::Vector3::from(b));
-                a.cross(&b).norm()
-            };
-            for _ in 0..(area * per_m2) as usize {
-                let (u, v) = (unit(), unit());
-                points.push(Point3::from(std::array::from_fn(|i| o[i] + u * a[i] + v * b[i])));
-            }
-        };
-    patch(&mut points, &mut unit, [0.0, 0.0, 0.0], [size, 0.0, 0.0], [0.0, size, 0.0]);
-    for _ in 0..(size * size / 40.0) as usize {
-        let (x, y) = (unit() * (size - 6.0), unit() * (size - 6.0));
-        let (w, d, h) = (1.0 + 5.0 * unit(), 1.0 + 5.0 * unit(), 0.5 + 4.0 * unit());
-        patch(&mut points, &mut unit, [x, y, 0.0], [w, 0.0, 0.0], [0.0, 0.0, h]);
-        patch(&mut points, &mut unit, [x, y + d, 0.0], [w, 0.0, 0.0], [0.0, 0.0, h]);
-        patch(&mut points, &mut unit, [x, y, 0.0], [0.0, d, 0.0], [0.0, 0.0, h]);
-        patch(&mut points, &mut unit, [x + w, y, 0.0], [0.0, d, 0.0], [0.0, 0.0, h]);
-        patch(&mut points, &mut unit, [x, y, h], [w, 0.0, 0.0], [0.0, d, 0.0]);
-    }
-    PointCloud::from_points(points)
+    PointCloud::from_points(testkit::yard(seed, size, per_m2))
 }
 
 /// Preparations and pair estimates so far.
@@ -289,4 +266,40 @@ fn the_coarse_preset_keeps_the_indoor_verdicts() {
     let support = ambiguous_support(&report);
     println!("aisles, coarse preset: alternative support {support:.2}");
     assert!(support > 0.5, "support {support:.2}");
+}
+
+#[test]
+fn a_small_shared_part_of_two_large_maps_is_linked_around_its_place() {
+    // Two maps share a 40 m yard and each holds a 100 m one of its own: over the whole maps the
+    // correct correspondences are a small share of all, and the score falls short; around the
+    // shared place (two keyframes whose descriptors look alike) they are most, and the link is
+    // found. Every check still judges the whole maps.
+    let shared = yard(11, 40.0, 6.0);
+    let truth = pose_from_yaw_deg(70.0, [25.0, -40.0, 1.0]);
+    let beside = |seed, x: f64| moved(&yard(seed, 100.0, 6.0), &pose_from_yaw_deg(0.0, [x, -50.0, 0.0]));
+    let mut target = shared.clone();
+    target.points.extend(beside(12, 41.0).points);
+    let mut source = shared.clone();
+    source.points.extend(beside(13, -101.0).points);
+    let source = moved(&source, &truth.inverse());
+    let config = MergeConfig::outdoor();
+    let (a, b) = (PreparedMap::new(target, None, &config), PreparedMap::new(source, None, &config));
+    let whole = estimate_pair((0, &a), (1, &b), &config, None);
+    assert!(whole.edge().is_none(), "the premise: no link over the whole maps, {whole:?}");
+    // Where each map's keyframe stood at the shared place, in its own frame.
+    let place = Point3::new(20.0, 20.0, 1.0);
+    let around = Around { source: truth.inverse().cast::<f32>() * place, target: place, radius: 40.0 };
+    let found = estimate_pair((0, &a), (1, &b), &config, Some(&around));
+    let edge = found.edge().unwrap_or_else(|| panic!("linked around the shared place: {found:?}"));
+    assert!(edge.around);
+    assert_pose_close!(&edge.transform, &truth, 0.05, 0.5);
+    // A candidate between the maps' own yards (look-alike boxes, another place) links nothing.
+    let elsewhere = Point3::new(90.0, 0.0, 1.0);
+    let wrong = Around {
+        source: truth.inverse().cast::<f32>() * Point3::new(-50.0, 0.0, 1.0),
+        target: elsewhere,
+        radius: 40.0,
+    };
+    let refused = estimate_pair((0, &a), (1, &b), &config, Some(&wrong));
+    assert!(refused.edge().is_none(), "{refused:?}");
 }

@@ -8,7 +8,7 @@ use cloud::PointCloud;
 use cloud::scan_context::{Comparable, ScanContext, ScanContextConfig};
 use nalgebra::Isometry3;
 use sim::{Scenario, SimConfig, Simulator};
-use station::merge::places::Places;
+use station::merge::places::{Place, Places};
 use station::merge::{MergeConfig, MergeReport, Merger, PairRejection, PairVerdict};
 
 mod truth;
@@ -34,15 +34,19 @@ fn robots(name: &str, pieces: usize, steps: usize, stride: usize) -> Vec<Robot> 
             let piece = m % pieces;
             let frames = &all[all.len() * piece / pieces..all.len() * (piece + 1) / pieces];
             let config = ScanContextConfig::default();
-            let contexts: Vec<Arc<Comparable>> = frames
+            let start = sim.pose_at(0.0).inverse();
+            let places: Vec<Place> = frames
                 .iter()
-                .map(|&f| Arc::new(Comparable::new(&ScanContext::new(&sim.deskewed(&sim.scan(f)), &config))))
+                .map(|&f| Place {
+                    context: Arc::new(Comparable::new(&ScanContext::new(&sim.deskewed(&sim.scan(f)), &config))),
+                    position: (start * sim.ground_truth(f)).translation.vector.cast::<f32>().into(),
+                })
                 .collect();
             let share = |k: usize| frames.len() * k / steps;
             Robot {
                 // In the robot's frame at the start of its run, whichever piece.
                 maps: (1..=steps).map(|k| sim.exact_map_of(&frames[..share(k)], 0.2).unwrap()).collect(),
-                places: (1..=steps).map(|k| Arc::new(Places::new(contexts[..share(k)].to_vec()))).collect(),
+                places: (1..=steps).map(|k| Arc::new(Places::new(places[..share(k)].to_vec()))).collect(),
                 frame: sim.pose_at(0.0),
                 positions: frames.iter().map(|&f| sim.ground_truth(f).translation.vector.into()).collect(),
             }
@@ -98,4 +102,58 @@ fn placed_maps_whose_places_never_match_are_not_searched_again() {
     assert!(!held.is_empty(), "some placed maps never pass the same places");
     assert!(gated.unmatched >= held.len());
     assert!(gated.pair_estimates <= plain.pair_estimates, "{gated:?} against {plain:?}");
+}
+
+/// The places of `map` at `positions` (its frame): each keyframe's descriptor made of the map's
+/// points within the descriptor's range around it, as a sensor there would see them.
+fn places_of(map: &PointCloud, positions: &[nalgebra::Point3<f32>], config: &ScanContextConfig) -> Arc<Places> {
+    let place = |&position: &nalgebra::Point3<f32>| {
+        let reach = config.max_range as f32;
+        let seen: Vec<_> =
+            map.points.iter().map(|p| p - position.coords).filter(|p| p.coords.xy().norm() < reach).collect();
+        let context = Arc::new(Comparable::new(&ScanContext::new(&PointCloud::from_points(seen), config)));
+        Place { context, position }
+    };
+    Arc::new(Places::new(positions.iter().map(place).collect()))
+}
+
+#[test]
+fn maps_that_share_a_small_part_are_linked_around_the_place_they_share() {
+    // Two maps share a 40 m yard and each holds a 100 m one of its own (station/tests/merge.rs
+    // searches the same pair directly): over the whole maps the link falls short; given the
+    // places of two keyframes each (one in the shared yard, one in its own), the merger searches
+    // around the pair that looks alike and places the second map, within 5 cm of the truth.
+    let yard = |seed, size, x: f64, y: f64| {
+        PointCloud::from_points(testkit::yard(seed, size, 6.0))
+            .transformed(&Isometry3::translation(x, y, 0.0).cast::<f32>())
+    };
+    let truth = testkit::pose_from_yaw_deg(70.0, [25.0, -40.0, 1.0]);
+    let mut target = yard(11, 40.0, 0.0, 0.0);
+    target.points.extend(yard(12, 100.0, 41.0, -50.0).points);
+    let mut source = yard(11, 40.0, 0.0, 0.0);
+    source.points.extend(yard(13, 100.0, -101.0, -50.0).points);
+    let source = source.transformed(&truth.inverse().cast::<f32>());
+    let frames = [Isometry3::identity(), truth];
+    let config = ScanContextConfig { max_range: 20.0, ..ScanContextConfig::default() };
+    let at = |x: f32, y: f32| nalgebra::Point3::new(x, y, 1.0);
+    let source_at = |p: nalgebra::Point3<f32>| truth.inverse().cast::<f32>() * p;
+    let places = [
+        places_of(&target, &[at(90.0, 0.0), at(20.0, 20.0)], &config),
+        places_of(&source, &[source_at(at(-50.0, 0.0)), source_at(at(20.0, 20.0))], &config),
+    ];
+    let run = |with_places: bool| {
+        let mut merger = Merger::new(MergeConfig::outdoor()).unwrap();
+        for (id, (map, places)) in [&target, &source].into_iter().zip(&places).enumerate() {
+            merger.grow(id, 0, map.clone());
+            merger.set_places(id, with_places.then(|| Arc::clone(places)));
+        }
+        let report = merge_until_done(&mut merger, &frames, 0, true);
+        (report.merged(), merger.stats())
+    };
+    let (alone, _) = run(false);
+    assert_eq!(alone, 1, "the premise: the whole maps give no link");
+    let (merged, stats) = run(true);
+    println!("{stats:?}");
+    assert_eq!(merged, 2);
+    assert_eq!(stats.around, 1, "{stats:?}");
 }

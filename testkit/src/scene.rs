@@ -19,3 +19,33 @@ pub fn boxes_around(seed: u64) -> Vec<Point3<f32>> {
     }
     points
 }
+
+/// A synthetic yard: `size` x `size` m of ground from the origin and boxes of random sizes on it
+/// (seeded), `per_m2` points per square metre.
+pub fn yard(seed: u64, size: f32, per_m2: f32) -> Vec<Point3<f32>> {
+    let mut rng = Rng::xorshift64_star(Rng::spread(seed));
+    let mut unit = move || rng.f32();
+    let mut points = Vec::new();
+    let patch =
+        |points: &mut Vec<Point3<f32>>, unit: &mut dyn FnMut() -> f32, o: [f32; 3], a: [f32; 3], b: [f32; 3]| {
+            let area = {
+                let (a, b) = (nalgebra::Vector3::from(a), nalgebra::Vector3::from(b));
+                a.cross(&b).norm()
+            };
+            for _ in 0..(area * per_m2) as usize {
+                let (u, v) = (unit(), unit());
+                points.push(Point3::from(std::array::from_fn(|i| o[i] + u * a[i] + v * b[i])));
+            }
+        };
+    patch(&mut points, &mut unit, [0.0, 0.0, 0.0], [size, 0.0, 0.0], [0.0, size, 0.0]);
+    for _ in 0..(size * size / 40.0) as usize {
+        let (x, y) = (unit() * (size - 6.0), unit() * (size - 6.0));
+        let (w, d, h) = (1.0 + 5.0 * unit(), 1.0 + 5.0 * unit(), 0.5 + 4.0 * unit());
+        patch(&mut points, &mut unit, [x, y, 0.0], [w, 0.0, 0.0], [0.0, 0.0, h]);
+        patch(&mut points, &mut unit, [x, y + d, 0.0], [w, 0.0, 0.0], [0.0, 0.0, h]);
+        patch(&mut points, &mut unit, [x, y, 0.0], [0.0, d, 0.0], [0.0, 0.0, h]);
+        patch(&mut points, &mut unit, [x + w, y, 0.0], [0.0, d, 0.0], [0.0, 0.0, h]);
+        patch(&mut points, &mut unit, [x, y, h], [w, 0.0, 0.0], [0.0, d, 0.0]);
+    }
+    points
+}

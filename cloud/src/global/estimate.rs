@@ -67,23 +67,30 @@ impl Estimate {
 
 /// Steps 5-7: the transform mapping `source` into the frame of `target`.
 pub fn estimate(source: &Features, target: &Features, config: &GlobalConfig) -> Result<Estimate, NoModel> {
-    estimate_excluding(source, target, config, &[], 0.0)
+    estimate_excluding(source, target, config, &[], 0.0, None)
 }
 
 /// Steps 5-7 on the correspondences that disagree with every transform of `excluded` (the source
 /// keypoint lands farther than `margin` metres from its target keypoint): the next distinct
 /// hypothesis after those, when they were found wrong (sequential RANSAC). `matches` and the
 /// inlier ratio still count every correspondence, so that hypotheses are scored alike.
+///
+/// With `around`, only the keypoints near the place the two clouds are believed to share are
+/// matched (see [`Around`]); `matches` and the inlier ratio then count the correspondences there.
 pub fn estimate_excluding(
     source: &Features,
     target: &Features,
     config: &GlobalConfig,
     excluded: &[Isometry3<f64>],
     margin: f64,
+    around: Option<&Around>,
 ) -> Result<Estimate, NoModel> {
     let mut timing = EstimateTiming::default();
     let mut watch = Stopwatch::start();
-    let matches = matching::reciprocal_matches(&source.descriptors, &target.descriptors, config.matching.k);
+    let matches = match around {
+        None => matching::reciprocal_matches(&source.descriptors, &target.descriptors, config.matching.k),
+        Some(around) => around.matches(source, target, config.matching.k),
+    };
     timing.matching = watch.lap();
     let (src, tgt) = keypoint_pairs(source, target, &matches);
     let kept: Vec<usize> =
@@ -102,6 +109,44 @@ pub fn estimate_excluding(
         ransac_iterations: model.iterations,
         timing,
     })
+}
+
+/// Where two clouds are believed to overlap: a place each seems to share with the other (two
+/// keyframes whose place descriptors look alike), in each cloud's own frame, and how far around it
+/// to look.
+///
+/// Two large maps that share a small part (robots that meet at one door) give few correct
+/// correspondences among many wrong ones, and RANSAC's best model can be a look-alike elsewhere;
+/// around the shared place the correct ones are a large share. Matching there is also cheaper:
+/// the descriptor distances are a product of the two keypoint counts.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Around {
+    /// The place in the source cloud's frame.
+    pub source: Point3<f32>,
+    /// The place in the target cloud's frame.
+    pub target: Point3<f32>,
+    /// Keypoints farther than this from the place are left out, metres (the station uses the
+    /// place descriptor's range: what the two keyframes were compared on).
+    pub radius: f32,
+}
+
+impl Around {
+    /// Step 5 on the keypoints near the place: reciprocal matches among them only, indexed into
+    /// the clouds' whole keypoint lists.
+    fn matches(&self, source: &Features, target: &Features, k: usize) -> Vec<Correspondence> {
+        let (s, t) = (self.keypoints_near(source, &self.source), self.keypoints_near(target, &self.target));
+        let descriptors = |f: &Features, near: &[usize]| near.iter().map(|&i| f.descriptors[i]).collect::<Vec<_>>();
+        matching::reciprocal_matches(&descriptors(source, &s), &descriptors(target, &t), k)
+            .into_iter()
+            .map(|c| Correspondence { source: s[c.source], target: t[c.target], ..c })
+            .collect()
+    }
+
+    /// Positions in the keypoint list of the keypoints within the radius of `place`.
+    fn keypoints_near(&self, features: &Features, place: &Point3<f32>) -> Vec<usize> {
+        let r2 = self.radius * self.radius;
+        (0..features.keypoints.len()).filter(|&k| (features.keypoint(k) - place).norm_squared() <= r2).collect()
+    }
 }
 
 /// The keypoint positions each correspondence pairs, source and target, in double precision.

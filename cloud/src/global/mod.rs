@@ -41,7 +41,7 @@ use crate::kdtree::gate_radius;
 
 pub use config::GlobalConfig;
 pub use error::FeatureError;
-pub use estimate::{Estimate, EstimateTiming, NoModel, estimate, estimate_excluding};
+pub use estimate::{Around, Estimate, EstimateTiming, NoModel, estimate, estimate_excluding};
 pub use features::{FeatureTiming, Features};
 pub use fpfh::{Fpfh, FpfhConfig};
 pub use harris::HarrisConfig;

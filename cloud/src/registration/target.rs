@@ -62,6 +62,12 @@ impl PackedCovariance {
         Self([n.x as f32, n.y as f32, n.z as f32])
     }
 
+    /// The plane's unit normal; `None` for a shapeless point (`C = I`).
+    pub fn unit_normal(&self) -> Option<Vector3<f64>> {
+        let n = self.normal();
+        (n != Vector3::zeros()).then(|| n.normalize())
+    }
+
     fn normal(&self) -> Vector3<f64> {
         Vector3::new(f64::from(self.0[0]), f64::from(self.0[1]), f64::from(self.0[2]))
     }
@@ -123,6 +129,11 @@ impl GaussianCloud {
     /// Point `i` in f64.
     pub fn point(&self, i: usize) -> Vector3<f64> {
         self.points[i].coords.cast()
+    }
+
+    /// The unit normal of the plane point `i` lies on; `None` for a shapeless point.
+    pub fn plane_normal(&self, i: usize) -> Option<Vector3<f64>> {
+        self.covariances[i].unit_normal()
     }
 
     /// Covariance of point `i` in f64.
@@ -208,5 +219,9 @@ mod tests {
         assert!((PackedCovariance::pack(&turned).unpack() - turned).norm() < 1e-6);
         assert!((PackedCovariance::pack(&c).rotated(&r) - turned).norm() < 1e-6);
         assert!((PackedCovariance::pack(&c).turned(&r).unpack() - turned).norm() < 1e-6);
+        // The plane's normal is the covariance's least eigenvector, up to sign; none without a plane.
+        let n = PackedCovariance::pack(&c).unit_normal().unwrap();
+        assert!((n.dot(&axis).abs() - 1.0).abs() < 1e-6, "{n} vs {axis}");
+        assert_eq!(PackedCovariance::pack(&Matrix3::identity()).unit_normal(), None);
     }
 }

@@ -195,7 +195,7 @@ fn align_global(source: &PointCloud, target: &PointCloud, config: &MergeConfig) 
             return Err(FilesError::Unusable { which, reason: reason.clone() });
         }
     }
-    match estimate_pair((0, &t), (1, &s), config) {
+    match estimate_pair((0, &t), (1, &s), config, None) {
         PairVerdict::Edge(e) => Ok(Alignment {
             transform: e.transform,
             score: Some(e.confidence.score),

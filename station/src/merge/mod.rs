@@ -4,8 +4,11 @@
 //!    outlier filter, normals, Harris keypoints, FPFH) and the Gaussians VGICP needs.
 //! 2. **Per pair, in parallel** ([`estimate::estimate_pair`]): global registration
 //!    ([`crate::pairwise::align`]); when it finds no reliable transform and
-//!    [`MergeConfig::coarse`] is set (indoor), the same at 0.4 m, polished on the fine surfels.
-//!    Then VGICP refinement started from it
+//!    [`MergeConfig::coarse`] is set (indoor), the same at 0.4 m, polished on the fine surfels;
+//!    when that gives no edge and the maps' places show a candidate overlap ([`places`]: two
+//!    keyframes that look alike), the same on the features within the descriptor's range of the
+//!    two keyframes only ([`cloud::global::Around`]: a small shared part of two large maps, whose
+//!    correct correspondences are a small share of all). Then VGICP refinement started from it
 //!    ([`cloud::registration::align_gaussians`], VGICP). The refinement is kept
 //!    only if it converged to a transform within [`MergeConfig::max_refine_translation`] /
 //!    [`MergeConfig::max_refine_rotation_deg`] of the global one (VGICP that runs off locked onto
@@ -19,7 +22,8 @@
 //! 3. **Confidence.** What is published per edge is the *overlap-aware score*
 //!    `s = √(overlap · inlier_ratio)` of [`crate::pairwise::confidence`], recomputed at the final
 //!    (refined) transform: `overlap` is the share of source surfels with a target surfel within
-//!    1.5 voxels, `inlier_ratio` the RANSAC inlier share. map_merge_3d's fitness `1 / mean(d²)` is
+//!    1.5 voxels, `inlier_ratio` the RANSAC inlier share (of the correspondences around the
+//!    shared place, for a link found there: the evidence where the maps overlap). map_merge_3d's fitness `1 / mean(d²)` is
 //!    reported next to it ([`crate::pairwise::Confidence::fitness`]) but not used for decisions: unrelated maps whose
 //!    floors coincide score a high fitness. An edge enters the match graph when the pairwise
 //!    checks pass (inliers, overlap, score), `s ≥` [`MergeConfig::min_confidence`] — default

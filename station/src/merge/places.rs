@@ -1,7 +1,8 @@
 //! Step 2a — candidate overlaps from place recognition: whether some keyframe of one map looks like
 //! some keyframe of another (Scan Context, compared across robots as the edge compares a robot's
 //! own keyframes for its loops). The merger uses it to leave unsearched the pairs of placed maps
-//! that show none (see `Merger::set_places`).
+//! that show none (see `Merger::set_places`), and, when a search of two whole maps finds no link,
+//! to search again around the closest candidate ([`Candidate::around`]).
 //!
 //! Global registration of two whole maps is the costliest step of a merge, and many pairs of a
 //! large fleet share nothing. Every robot sends each keyframe's descriptor with it; comparing two
@@ -10,8 +11,10 @@
 
 use std::sync::Arc;
 
+use cloud::global::Around;
 use cloud::memory::vec_bytes;
 use cloud::scan_context::{Comparable, RINGS, RingKeyIndex};
+use nalgebra::Point3;
 use rayon::prelude::*;
 
 /// How maps' places are compared.
@@ -33,9 +36,20 @@ impl Default for PlaceConfig {
     }
 }
 
-/// A map's places: every keyframe's descriptor, and their ring keys indexed.
+/// One keyframe as place recognition sees it.
+#[derive(Clone)]
+pub struct Place {
+    /// Its descriptor.
+    pub context: Arc<Comparable>,
+    /// Where the keyframe's sensor stood, in the map's frame: where a search for an overlap that
+    /// the descriptor suggests looks.
+    pub position: Point3<f32>,
+}
+
+/// A map's places: every keyframe's descriptor and position, and their ring keys indexed.
 pub struct Places {
     contexts: Vec<Arc<Comparable>>,
+    positions: Vec<Point3<f32>>,
     index: RingKeyIndex,
     /// Grid and range shared by every descriptor; `None` when they differ or there are none.
     shape: Option<Shape>,
@@ -57,14 +71,16 @@ pub struct Candidate {
 
 impl Places {
     /// The places of a map's keyframes.
-    pub fn new(contexts: Vec<Arc<Comparable>>) -> Self {
+    pub fn new(places: Vec<Place>) -> Self {
+        let (contexts, positions): (Vec<Arc<Comparable>>, Vec<Point3<f32>>) =
+            places.into_iter().map(|p| (p.context, p.position)).unzip();
         let mut index = RingKeyIndex::default();
         for (k, c) in contexts.iter().enumerate() {
             index.add(&c.ring_key, k);
         }
         let shape_of = |c: &Arc<Comparable>| (c.rings, c.sectors, c.max_range.to_bits());
         let shape = contexts.first().map(shape_of).filter(|s| contexts.iter().all(|c| shape_of(c) == *s));
-        Self { contexts, index, shape }
+        Self { contexts, positions, index, shape }
     }
 
     /// Bytes of the ring-key index (the descriptors are the caller's, shared).
@@ -72,6 +88,7 @@ impl Places {
         // kiddo does not report its size: a ring key, an item and a bucket's share per keyframe.
         self.index.len() * (std::mem::size_of::<[f32; RINGS]>() + 2 * std::mem::size_of::<u32>())
             + vec_bytes(&self.contexts)
+            + vec_bytes(&self.positions)
     }
 
     /// Keyframes described.
@@ -120,6 +137,20 @@ impl Places {
     }
 }
 
+impl Candidate {
+    /// Where the search for the overlap it suggests looks, between map `a` (the target: the
+    /// first map of the pair) and map `b` (the source): around the two keyframes, as far as
+    /// their descriptors reach. `None` when the places are not the candidate's.
+    pub fn around(&self, a: &Places, b: &Places) -> Option<Around> {
+        let (_, _, range) = a.shape.filter(|_| a.comparable(b))?;
+        Some(Around {
+            source: *b.positions.get(self.b)?,
+            target: *a.positions.get(self.a)?,
+            radius: f64::from_bits(range) as f32,
+        })
+    }
+}
+
 /// How many keyframes of each map of a pair were compared already.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Since {
@@ -140,9 +171,32 @@ mod tests {
         PointCloud::from_points(testkit::boxes_around(seed))
     }
 
+    /// Places of scans taken at the origin.
     fn places(scans: &[PointCloud]) -> Places {
+        places_at(scans, &vec![Point3::origin(); scans.len()])
+    }
+
+    /// Places of scans taken at `positions`.
+    fn places_at(scans: &[PointCloud], positions: &[Point3<f32>]) -> Places {
         let config = ScanContextConfig::default();
-        Places::new(scans.iter().map(|s| Arc::new(Comparable::new(&ScanContext::new(s, &config)))).collect())
+        let place =
+            |(s, &position)| Place { context: Arc::new(Comparable::new(&ScanContext::new(s, &config))), position };
+        Places::new(scans.iter().zip(positions).map(place).collect())
+    }
+
+    #[test]
+    fn a_candidate_points_the_search_at_its_two_keyframes() {
+        let (here, elsewhere) = (scene(5), scene(6));
+        let turned = here.transformed(&Isometry3::rotation(Vector3::z() * -1.0).cast());
+        let a = places_at(&[elsewhere, here], &[Point3::new(40.0, 0.0, 0.0), Point3::new(3.0, -7.0, 0.5)]);
+        let b = places_at(&[turned], &[Point3::new(-12.0, 25.0, 0.0)]);
+        let found = a.best_match(&b, Since::default(), &PlaceConfig::default()).expect("the same place");
+        let around = found.around(&a, &b).expect("comparable places");
+        // The second map is the source: its keyframe's position is where the search looks in it.
+        assert_eq!((around.target, around.source), (Point3::new(3.0, -7.0, 0.5), Point3::new(-12.0, 25.0, 0.0)));
+        assert_eq!(around.radius, ScanContextConfig::default().max_range as f32);
+        // A candidate of other places points nowhere.
+        assert_eq!(Candidate { a: 5, b: 0, distance: 0.1 }.around(&a, &b), None);
     }
 
     #[test]
@@ -167,7 +221,8 @@ mod tests {
         let scan = scene(4);
         let indoor = ScanContextConfig { max_range: 40.0, ..ScanContextConfig::default() };
         let a = places(std::slice::from_ref(&scan));
-        let b = Places::new(vec![Arc::new(Comparable::new(&ScanContext::new(&scan, &indoor)))]);
+        let context = Arc::new(Comparable::new(&ScanContext::new(&scan, &indoor)));
+        let b = Places::new(vec![Place { context, position: Point3::origin() }]);
         assert!(!a.comparable(&b));
         assert!(!a.comparable(&Places::new(Vec::new())));
     }

@@ -18,7 +18,7 @@ use cloud::visibility::Views;
 use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};
 
-use super::places::{Places, Since};
+use super::places::{Candidate, Places, Since};
 use super::{MergeConfig, PairRejection, PairVerdict, PreparedMap, estimate_pair, keep_link, track_pair};
 
 /// A map's preparation and what it was made from.
@@ -43,11 +43,11 @@ pub(super) struct CachedPair {
     pub searched_with: (u64, u64),
 }
 
-/// How far two maps' places were compared.
+/// How far two maps' places were compared, and the closest candidate found so far.
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct Compared {
     pub since: Since,
-    pub found: bool,
+    pub best: Option<Candidate>,
 }
 
 /// How much work the merger has done since it was created.
@@ -63,6 +63,9 @@ pub struct MergerStats {
     pub merges: usize,
     /// Searches not run because no place of either map looked like one of the other's.
     pub unmatched: usize,
+    /// Searches that found their link around a place candidate (the features near the two
+    /// keyframes that look alike), not over the whole maps.
+    pub around: usize,
     /// Rounds of estimation run.
     pub rounds: usize,
 }
@@ -74,6 +77,7 @@ impl std::ops::AddAssign for MergerStats {
         self.tracked += other.tracked;
         self.merges += other.merges;
         self.unmatched += other.unmatched;
+        self.around += other.around;
         self.rounds += other.rounds;
     }
 }
@@ -342,8 +346,9 @@ impl Round {
             self.stats.unmatched += 1;
             self.done.insert(key(p));
         }
+        let over_budget = searches.split_off(searches.len().min(self.config.max_searches));
+        let (arounds, looked) = timed(|| searches.iter().map(|&p| self.around(key(p))).collect::<Vec<_>>());
         let config = &self.config;
-        let over_budget = searches.split_off(searches.len().min(config.max_searches));
         // A linked pair searched again (grown past `reverify_growth`, or settling) keeps its link by
         // tracking it when the search finds none: RANSAC is seeded by the maps, and a grown map can
         // draw a worse sample; one unlucky draw must not unmerge a robot whose link passed every
@@ -354,8 +359,9 @@ impl Round {
         };
         let found: Vec<(PairVerdict, bool)> = searches
             .par_iter()
-            .map(|&(a, b)| {
-                let searched = estimate_pair((a, &prepared[a]), (b, &prepared[b]), config);
+            .zip(&arounds)
+            .map(|(&(a, b), around)| {
+                let searched = estimate_pair((a, &prepared[a]), (b, &prepared[b]), config, around.as_ref());
                 let kept = match (&searched, previous((a, b))) {
                     (PairVerdict::Rejected { .. }, Some(edge)) => {
                         keep_link((a, &prepared[a]), (b, &prepared[b]), edge, config)
@@ -368,6 +374,7 @@ impl Round {
         self.stats.pair_estimates += searches.len();
         for (&p, (verdict, kept)) in searches.iter().zip(found) {
             self.stats.tracked += usize::from(kept);
+            self.stats.around += usize::from(verdict.edge().is_some_and(|e| e.around && !kept));
             let pair = CachedPair {
                 generations: self.generations(key(p)),
                 verdict,
@@ -378,7 +385,7 @@ impl Round {
             self.pairs.insert(key(p), pair);
             self.done.insert(key(p));
         }
-        (over_budget.len() + waiting.len(), places_time)
+        (over_budget.len() + waiting.len(), places_time + looked)
     }
 
     /// Step 2a: while settling, holds back the pairs waiting for a search that are not worth one:
@@ -405,27 +412,49 @@ impl Round {
     /// map without places, places not comparable) or the pair is linked.
     fn candidate(&mut self, key: (usize, usize)) -> Option<bool> {
         let linked = self.pairs.get(&key).is_some_and(|c| c.verdict.edge().is_some());
+        if linked {
+            return None;
+        }
+        Some(self.compare(key)?.best.is_some())
+    }
+
+    /// Step 2b: where a search of maps `key` looks first, around the closest candidate overlap
+    /// their places show (see [`cloud::global::Around`]); `None` to search the whole maps.
+    fn around(&mut self, key: (usize, usize)) -> Option<cloud::global::Around> {
+        let best = self.compare(key)?.best?;
+        best.around(self.maps[&key.0].places.as_deref()?, self.maps[&key.1].places.as_deref()?)
+    }
+
+    /// The places of maps `key` compared up to their newest keyframes; `None` when a map has none
+    /// or they are not comparable. Only what was not compared before is compared: descriptors do
+    /// not depend on poses.
+    fn compare(&mut self, key: (usize, usize)) -> Option<&Compared> {
         let pa = self.maps[&key.0].places.as_deref()?;
         let pb = self.maps[&key.1].places.as_deref()?;
-        if linked || !pa.comparable(pb) {
+        if !pa.comparable(pb) {
             return None;
         }
         let compared = self.compared.entry(key).or_default();
-        if !compared.found {
-            // The first time (or when a map was replaced by a smaller one), the smaller map's
-            // keyframes against the larger's: the descriptor distance is symmetric, and comparing
-            // both ways doubled the cost of a settling merge's first comparisons.
-            let fresh =
-                compared.since == Since::default() || compared.since.a > pa.len() || compared.since.b > pb.len();
-            let since = match (fresh, pa.len() <= pb.len()) {
+        // A map replaced by a smaller one is compared afresh.
+        if compared.since.a > pa.len() || compared.since.b > pb.len() {
+            *compared = Compared::default();
+        }
+        let now = Places::since(pa, pb);
+        if compared.since != now {
+            // The first time, the smaller map's keyframes against the larger's: the descriptor
+            // distance is symmetric, and comparing both ways doubled the cost of a settling
+            // merge's first comparisons.
+            let since = match (compared.since == Since::default(), pa.len() <= pb.len()) {
                 (false, _) => compared.since,
                 (true, true) => Since { a: 0, b: pb.len() },
                 (true, false) => Since { a: pa.len(), b: 0 },
             };
-            compared.found = pa.best_match(pb, since, &self.config.places).is_some();
-            compared.since = Places::since(pa, pb);
+            let found = pa.best_match(pb, since, &self.config.places);
+            compared.best =
+                [compared.best, found].into_iter().flatten().min_by(|x, y| x.distance.total_cmp(&y.distance));
+            compared.since = now;
         }
-        Some(compared.found)
+        Some(compared)
     }
 }
 

@@ -24,7 +24,7 @@ use cloud::global::{EstimateTiming, NoModel, estimate_excluding};
 use cloud::stopwatch::{Stopwatch, timed};
 use nalgebra::{Isometry3, Point3};
 
-pub use cloud::global::{Correspondence, FeatureError, FeatureTiming, Features, GlobalConfig};
+pub use cloud::global::{Around, Correspondence, FeatureError, FeatureTiming, Features, GlobalConfig};
 pub use confidence::{Confidence, ConfidenceConfig};
 
 /// Why a pair of maps could not be processed.
@@ -219,7 +219,7 @@ pub fn register(
 
 /// Steps 5-7 and the scores for two maps' features (`total` timing: features plus this call).
 pub fn align(source: &Features, target: &Features, config: &PairwiseConfig) -> PairwiseOutcome {
-    align_excluding(source, target, config, &[])
+    align_excluding(source, target, config, &[], None)
 }
 
 /// Correspondences farther than this many RANSAC inlier distances from a transform count as
@@ -227,15 +227,18 @@ pub fn align(source: &Features, target: &Features, config: &PairwiseConfig) -> P
 pub const EXCLUSION: f64 = 3.0;
 
 /// [`align`] on the correspondences that disagree with every transform of `excluded` (beyond
-/// [`EXCLUSION`] inlier distances): the next distinct hypothesis after transforms found wrong.
+/// [`EXCLUSION`] inlier distances): the next distinct hypothesis after transforms found wrong;
+/// with `around`, on those near a place both maps seem to share only (the inlier ratio is then
+/// theirs, see [`Around`]).
 pub fn align_excluding(
     source: &Features,
     target: &Features,
     config: &PairwiseConfig,
     excluded: &[Isometry3<f64>],
+    around: Option<&Around>,
 ) -> PairwiseOutcome {
     let margin = EXCLUSION * config.global.ransac.inlier_distance;
-    let found = match estimate_excluding(source, target, &config.global, excluded, margin) {
+    let found = match estimate_excluding(source, target, &config.global, excluded, margin, around) {
         Ok(found) => found,
         Err(NoModel { correspondences }) => {
             return PairwiseOutcome::NotAligned { reason: Rejection::NoModel { correspondences }, best: None };

@@ -13,17 +13,17 @@ use cloud::memory::{HeapSize, map_bytes, vec_bytes};
 use cloud::scan_context::Comparable;
 use cloud::visibility::{RangeImage, View, Views, VisibilityConfig};
 use cloud::voxel::VoxelMap;
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3};
 use prost::Message;
 use proto::codec::{self, CodecConfig};
 use proto::{CompressedCloud, Fleet, GlobalMap, MergeEdge, MergeStatus, RobotPlacement, Timestamp};
 use rayon::prelude::*;
-use rustc_hash::FxHashSet;
+use rustc_hash::{FxHashMap, FxHashSet};
 
 use super::estimator::{Estimator, Notify};
 use super::fleet_state::{Basis, FleetState};
 use super::ingest;
-use crate::merge::places::Places;
+use crate::merge::places::{Place, Places};
 use crate::merge::{MergeConfig, MergeError, MergeReport, Merger, PairVerdict, RoundTiming};
 
 /// One robot's input to a job: its keyframe clouds with their poses, at one map revision.
@@ -133,30 +133,51 @@ pub struct MergeWorker {
 /// One robot's place descriptors, in the order its keyframes were first decoded.
 #[derive(Default)]
 struct RobotPlaces {
+    described: Vec<Described>,
+    /// The places given to the merger last: of how many keyframes, at which poses.
+    given: Option<GivenPlaces>,
+}
+
+/// A keyframe's place descriptor.
+struct Described {
+    seq: u64,
     /// `None` for a keyframe that came without a usable descriptor.
-    contexts: Vec<Option<Arc<Comparable>>>,
-    /// The places given to the merger last, and of how many keyframes.
-    given: Option<(usize, Arc<Places>)>,
+    context: Option<Arc<Comparable>>,
+}
+
+/// Places given to the merger.
+struct GivenPlaces {
+    keyframes: usize,
+    pose_revision: Option<u64>,
+    places: Arc<Places>,
 }
 
 impl RobotPlaces {
-    /// The robot's places, when every keyframe has a descriptor (a map described in part could
-    /// overlap another where it is not described).
-    fn places(&mut self) -> Option<Arc<Places>> {
-        if let Some((n, places)) = &self.given
-            && *n == self.contexts.len()
+    /// The robot's places at the snapshot's poses, when every keyframe has a descriptor (a map
+    /// described in part could overlap another where it is not described).
+    fn places(&mut self, r: &RobotSnapshot) -> Option<Arc<Places>> {
+        if let Some(given) = &self.given
+            && given.keyframes == self.described.len()
+            && given.pose_revision == r.basis.pose_revision
         {
-            return Some(Arc::clone(places));
+            return Some(Arc::clone(&given.places));
         }
-        let contexts: Vec<Arc<Comparable>> = self.contexts.iter().cloned().collect::<Option<_>>()?;
-        let places = Arc::new(Places::new(contexts));
-        self.given = Some((self.contexts.len(), Arc::clone(&places)));
+        let positions: FxHashMap<u64, Point3<f32>> =
+            r.keyframes.iter().map(|kf| (kf.seq, Point3::from(kf.pose.translation.vector.cast::<f32>()))).collect();
+        let places: Vec<Place> = self
+            .described
+            .iter()
+            .map(|d| Some(Place { context: Arc::clone(d.context.as_ref()?), position: *positions.get(&d.seq)? }))
+            .collect::<Option<_>>()?;
+        let places = Arc::new(Places::new(places));
+        let pose_revision = r.basis.pose_revision;
+        self.given = Some(GivenPlaces { keyframes: self.described.len(), pose_revision, places: Arc::clone(&places) });
         Some(places)
     }
 
     fn heap_bytes(&self) -> usize {
-        let contexts: usize = self.contexts.iter().flatten().map(|c| c.heap_bytes()).sum();
-        contexts + vec_bytes(&self.contexts) + self.given.as_ref().map_or(0, |(_, p)| p.index_bytes())
+        let contexts: usize = self.described.iter().filter_map(|d| d.context.as_ref()).map(|c| c.heap_bytes()).sum();
+        contexts + vec_bytes(&self.described) + self.given.as_ref().map_or(0, |g| g.places.index_bytes())
     }
 }
 
@@ -281,7 +302,7 @@ impl MergeWorker {
             for kf in decode(r.robot, piece, images, &self.merger.config().visibility) {
                 if let Some(first) = kf.first {
                     images.insert(kf.seq, first.image);
-                    places.contexts.push(first.context);
+                    places.described.push(Described { seq: kf.seq, context: first.context });
                 }
                 if local.included.insert(kf.seq) {
                     local.in_order &= local.newest.is_none_or(|n| kf.seq > n);
@@ -291,7 +312,7 @@ impl MergeWorker {
                 }
             }
         }
-        let given = places.places();
+        let given = places.places(r);
         local.revision = r.revision;
         let cloud = local.map.cloud();
         if settle {
@@ -420,12 +441,21 @@ fn log_report(report: &MergeReport, round: Option<&RoundTiming>) {
     for pair in report.pairs.iter().filter(|p| !p.cached) {
         match &pair.verdict {
             PairVerdict::Edge(e) => tracing::info!(
-                "robots {} and {}: edge, confidence {:.3}, {} inliers, acceptance {}",
+                "robots {} and {}: edge{}, confidence {:.3}, {} inliers, acceptance {}; placement ({:.2}, {:.2}, {:.2}) m, yaw {:.1} deg",
                 id(pair.a),
                 id(pair.b),
+                match (e.tracked, e.around) {
+                    (true, _) => " (tracked)",
+                    (false, true) => " (found around a place candidate)",
+                    (false, false) => "",
+                },
                 e.confidence.score,
                 e.inliers,
-                e.acceptance.map_or("unchecked".to_string(), |a| a.to_string())
+                e.acceptance.map_or("unchecked".to_string(), |a| a.to_string()),
+                e.transform.translation.x,
+                e.transform.translation.y,
+                e.transform.translation.z,
+                e.transform.rotation.euler_angles().2.to_degrees()
             ),
             PairVerdict::Rejected { reason, best_transform: Some(t), .. } => {
                 // Where the best candidate would have put the robot: with the truth at hand (a
