@@ -23,8 +23,8 @@
 //!    `s = √(overlap · inlier_ratio)` of [`crate::pairwise::confidence`], recomputed at the final
 //!    (refined) transform: `overlap` is the share of source surfels with a target surfel within
 //!    1.5 voxels, `inlier_ratio` the RANSAC inlier share (of the correspondences around the
-//!    shared place, for a link found there: the evidence where the maps overlap). map_merge_3d's fitness `1 / mean(d²)` is
-//!    reported next to it ([`crate::pairwise::Confidence::fitness`]) but not used for decisions: unrelated maps whose
+//!    shared place, for a link found there: the evidence where the maps overlap). map_merge_3d's
+//!    fitness `1 / mean(d²)` is reported next to it ([`crate::pairwise::Confidence::fitness`]) but not used for decisions: unrelated maps whose
 //!    floors coincide score a high fitness. An edge enters the match graph when the pairwise
 //!    checks pass (inliers, overlap, score), `s ≥` [`MergeConfig::min_confidence`] — default
 //!    **0.09 outdoor** and **0.12 indoor** (the pairwise default) — and the pair is not ambiguous

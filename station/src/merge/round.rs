@@ -395,10 +395,11 @@ impl Round {
     /// left out, when comparing places ran inside the merges (0.3-0.6 s more per 16-robot merge);
     /// in the rounds beside them it changed nothing measurable (2026-11-28, 16 / 32 robots: merge
     /// p95 640 / 1,050 ms against 674 / 1,114, latency p95 2.4 / 2.8 s against 2.5 / 2.9, the same
-    /// placements), and a search is then never spent on what cannot add a placement. A pair with an unplaced map is searched even
-    /// without a candidate: two maps can overlap where no two keyframes stand at one place (one
-    /// robot saw from afar what the other drove through; the 16-robot campus load had a robot
-    /// linked only that way). A pair once linked is never held back: its link is the evidence.
+    /// placements), and a search is then never spent on what cannot add a placement. A pair with
+    /// an unplaced map is searched even without a candidate: two maps can overlap where no two
+    /// keyframes stand at one place (one robot saw from afar what the other drove through; the
+    /// 16-robot campus load had a robot linked only that way). A pair once linked is never held
+    /// back: its link is the evidence.
     fn with_candidates(&mut self, ids: &[usize], pairs: Positions) -> (Positions, Positions) {
         let (mut searched, mut unmatched) = (Vec::new(), Vec::new());
         for (a, b) in pairs {
@@ -419,8 +420,9 @@ impl Round {
         Some(self.compare(key)?.best.is_some())
     }
 
-    /// Step 2b: where a search of maps `key` looks first, around the closest candidate overlap
-    /// their places show (see [`cloud::global::Around`]); `None` to search the whole maps.
+    /// Step 2b: where a search of maps `key` looks again when the whole maps give no link, around
+    /// the closest candidate overlap their places show (see [`cloud::global::Around`]); `None`:
+    /// the whole maps only.
     fn around(&mut self, key: (usize, usize)) -> Option<cloud::global::Around> {
         let best = self.compare(key)?.best?;
         best.around(self.maps[&key.0].places.as_deref()?, self.maps[&key.1].places.as_deref()?)
