@@ -274,16 +274,11 @@ fn a_small_shared_part_of_two_large_maps_is_linked_around_its_place() {
     // correct correspondences are a small share of all, and the score falls short; around the
     // shared place (two keyframes whose descriptors look alike) they are most, and the link is
     // found. Every check still judges the whole maps.
-    let shared = yard(11, 40.0, 6.0);
     let truth = pose_from_yaw_deg(70.0, [25.0, -40.0, 1.0]);
-    let beside = |seed, x: f64| moved(&yard(seed, 100.0, 6.0), &pose_from_yaw_deg(0.0, [x, -50.0, 0.0]));
-    let mut target = shared.clone();
-    target.points.extend(beside(12, 41.0).points);
-    let mut source = shared.clone();
-    source.points.extend(beside(13, -101.0).points);
-    let source = moved(&source, &truth.inverse());
+    let (target, source) = testkit::yards_sharing_one(&truth);
     let config = MergeConfig::outdoor();
-    let (a, b) = (PreparedMap::new(target, None, &config), PreparedMap::new(source, None, &config));
+    let prepared = |points| PreparedMap::new(PointCloud::from_points(points), None, &config);
+    let (a, b) = (prepared(target), prepared(source));
     let whole = estimate_pair((0, &a), (1, &b), &config, None);
     assert!(whole.edge().is_none(), "the premise: no link over the whole maps, {whole:?}");
     // Where each map's keyframe stood at the shared place, in its own frame.

@@ -123,16 +123,9 @@ fn maps_that_share_a_small_part_are_linked_around_the_place_they_share() {
     // searches the same pair directly): over the whole maps the link falls short; given the
     // places of two keyframes each (one in the shared yard, one in its own), the merger searches
     // around the pair that looks alike and places the second map, within 5 cm of the truth.
-    let yard = |seed, size, x: f64, y: f64| {
-        PointCloud::from_points(testkit::yard(seed, size, 6.0))
-            .transformed(&Isometry3::translation(x, y, 0.0).cast::<f32>())
-    };
     let truth = testkit::pose_from_yaw_deg(70.0, [25.0, -40.0, 1.0]);
-    let mut target = yard(11, 40.0, 0.0, 0.0);
-    target.points.extend(yard(12, 100.0, 41.0, -50.0).points);
-    let mut source = yard(11, 40.0, 0.0, 0.0);
-    source.points.extend(yard(13, 100.0, -101.0, -50.0).points);
-    let source = source.transformed(&truth.inverse().cast::<f32>());
+    let (target, source) = testkit::yards_sharing_one(&truth);
+    let (target, source) = (PointCloud::from_points(target), PointCloud::from_points(source));
     let frames = [Isometry3::identity(), truth];
     let config = ScanContextConfig { max_range: 20.0, ..ScanContextConfig::default() };
     let at = |x: f32, y: f32| nalgebra::Point3::new(x, y, 1.0);

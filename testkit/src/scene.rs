@@ -1,6 +1,6 @@
 //! A synthetic place: what a sensor at the origin sees of boxes standing at irregular places.
 
-use nalgebra::Point3;
+use nalgebra::{Isometry3, Point3, Vector3};
 
 use crate::Rng;
 
@@ -29,7 +29,7 @@ pub fn yard(seed: u64, size: f32, per_m2: f32) -> Vec<Point3<f32>> {
     let patch =
         |points: &mut Vec<Point3<f32>>, unit: &mut dyn FnMut() -> f32, o: [f32; 3], a: [f32; 3], b: [f32; 3]| {
             let area = {
-                let (a, b) = (nalgebra::Vector3::from(a), nalgebra::Vector3::from(b));
+                let (a, b) = (Vector3::from(a), Vector3::from(b));
                 a.cross(&b).norm()
             };
             for _ in 0..(area * per_m2) as usize {
@@ -48,4 +48,16 @@ pub fn yard(seed: u64, size: f32, per_m2: f32) -> Vec<Point3<f32>> {
         patch(&mut points, &mut unit, [x, y, h], [w, 0.0, 0.0], [0.0, d, 0.0]);
     }
     points
+}
+
+/// Two maps that share a small part: each holds the same 40 m yard at its origin and a 100 m yard
+/// of its own beside it (the target's to +x, the source's to -x); the source is seen from a frame
+/// `truth` away (its points are `truth⁻¹` of the world's), so `truth` maps it into the target.
+/// Returns (target, source). The shared place's centre is (20, 20) in the world.
+pub fn yards_sharing_one(truth: &Isometry3<f64>) -> (Vec<Point3<f32>>, Vec<Point3<f32>>) {
+    let beside = |seed, x: f32| yard(seed, 100.0, 6.0).into_iter().map(move |p| p + Vector3::new(x, -50.0, 0.0));
+    let target: Vec<Point3<f32>> = yard(11, 40.0, 6.0).into_iter().chain(beside(12, 41.0)).collect();
+    let seen_from = truth.inverse().cast::<f32>();
+    let source = yard(11, 40.0, 6.0).into_iter().chain(beside(13, -101.0)).map(|p| seen_from * p).collect();
+    (target, source)
 }
