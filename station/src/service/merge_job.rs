@@ -110,7 +110,7 @@ struct LocalMap {
     /// Every keyframe went in after those of lower sequence numbers. A map grown out of order (a
     /// gap filled by backfill, a restarted station's store) holds the same voxels in another
     /// order, with other rounding of their centroids, and the search finds a slightly different
-    /// placement: a settling merge rebuilds it in order ([`MergeWorker::give`]).
+    /// placement: a settling merge rebuilds it in order ([`RobotState::update`]).
     in_order: bool,
     /// Highest sequence number in `map`.
     newest: Option<u64>,
@@ -121,13 +121,33 @@ struct LocalMap {
 pub struct MergeWorker {
     merger: Merger,
     estimator: Estimator,
-    /// Per robot, the local map given to the merger.
-    maps: BTreeMap<u32, LocalMap>,
-    /// Per robot, each keyframe's range image (sensor frame: new poses only move it).
-    images: BTreeMap<u32, BTreeMap<u64, Arc<RangeImage>>>,
-    /// Per robot, its keyframes' place descriptors (independent of poses).
-    places: BTreeMap<u32, RobotPlaces>,
+    /// Per robot, what the jobs keep of it.
+    robots: BTreeMap<u32, RobotState>,
     voxel: f32,
+}
+
+/// What the jobs keep of one robot. Each robot's is brought up to its snapshot on its own, the
+/// robots in parallel: adding new keyframes to the local maps one robot after the other took most
+/// of a merge at 16 robots (each point a lookup in a grid of a few hundred thousand voxels).
+#[derive(Default)]
+struct RobotState {
+    /// The local map given to the merger; `None` until the first snapshot.
+    local: Option<LocalMap>,
+    /// Each keyframe's range image (sensor frame: new poses only move it).
+    images: BTreeMap<u64, Arc<RangeImage>>,
+    /// Its keyframes' place descriptors (independent of poses).
+    places: RobotPlaces,
+}
+
+/// A robot's local map brought up to its snapshot: what the merger is given for it.
+struct Update {
+    id: usize,
+    revision: u64,
+    cloud: PointCloud,
+    /// Built anew (new poses, or put in order), not grown.
+    rebuilt: bool,
+    views: Views,
+    places: Option<Arc<Places>>,
 }
 
 /// One robot's place descriptors, in the order its keyframes were first decoded.
@@ -186,14 +206,7 @@ impl MergeWorker {
     pub fn new(config: MergeConfig, notify: Notify) -> Result<Self, MergeError> {
         let voxel = local_map_voxel(&config);
         let estimator = Estimator::new(notify).map_err(|e| MergeError::Threads(e.to_string()))?;
-        Ok(Self {
-            merger: Merger::new(config)?,
-            estimator,
-            maps: BTreeMap::new(),
-            images: BTreeMap::new(),
-            places: BTreeMap::new(),
-            voxel,
-        })
+        Ok(Self { merger: Merger::new(config)?, estimator, robots: BTreeMap::new(), voxel })
     }
 
     /// Merges the robots' current maps into global map `revision` of `fleet` at the placements
@@ -207,9 +220,7 @@ impl MergeWorker {
         settle: bool,
     ) -> Result<MergeOutcome, MergeError> {
         let clock = Instant::now();
-        for r in robots {
-            self.give(r, settle);
-        }
+        self.give(robots, settle);
         if settle {
             self.merger.settle();
         } else {
@@ -265,33 +276,73 @@ impl MergeWorker {
         }
     }
 
-    /// Brings robot `r`'s local map up to its snapshot: new keyframes are added to it (the map
-    /// grows); new poses rebuild it (the map changes shape), and so does a `settle` of a map that
-    /// grew out of order: a fleet at rest gets the map its keyframes give in sequence order,
-    /// whatever order the network brought them in.
-    fn give(&mut self, r: &RobotSnapshot, settle: bool) {
-        let id = r.robot as usize;
+    /// Brings every robot's local map up to its snapshot (the robots in parallel, see
+    /// [`RobotState`]) and gives the merger the maps that changed.
+    fn give(&mut self, robots: &[RobotSnapshot], settle: bool) {
+        for r in robots {
+            self.robots.entry(r.robot).or_default();
+        }
+        let snapshots: FxHashMap<u32, &RobotSnapshot> = robots.iter().map(|r| (r.robot, r)).collect();
+        let (voxel, visibility) = (self.voxel, &self.merger.config().visibility);
+        let mut work: Vec<(&RobotSnapshot, &mut RobotState)> =
+            self.robots.iter_mut().filter_map(|(robot, state)| Some((*snapshots.get(robot)?, state))).collect();
+        let updates: Vec<Update> =
+            work.par_iter_mut().filter_map(|(r, state)| state.update(r, settle, voxel, visibility)).collect();
+        for u in updates {
+            if u.rebuilt {
+                // At the revision the merger holds when only the order changed.
+                self.merger.rebuild(u.id, u.revision, u.cloud);
+            } else {
+                self.merger.grow(u.id, u.revision, u.cloud);
+            }
+            self.merger.set_views(u.id, Arc::new(u.views));
+            self.merger.set_places(u.id, u.places);
+        }
+    }
+
+    /// Per robot, the bytes kept for it between jobs: its local map, its keyframes' range images
+    /// and place descriptors, and the merger's copy of its map with the map's preparation
+    /// (features, Gaussians).
+    pub fn memory(&self) -> BTreeMap<u32, u64> {
+        self.robots
+            .iter()
+            .filter_map(|(&robot, state)| {
+                let local = state.local.as_ref()?;
+                let images = state.images.values().map(|i| i.heap_bytes()).sum::<usize>()
+                    + state.images.len() * std::mem::size_of::<(u64, Arc<RangeImage>)>();
+                let merger = self.merger.heap_bytes_of(robot as usize).unwrap_or(0);
+                let included = map_bytes::<u64, ()>(local.included.capacity());
+                let places = state.places.heap_bytes();
+                Some((robot, (local.map.heap_bytes() + included + images + places + merger) as u64))
+            })
+            .collect()
+    }
+}
+
+impl RobotState {
+    /// Brings the local map up to snapshot `r`: new keyframes are added to it (the map grows); new
+    /// poses rebuild it (the map changes shape), and so does a `settle` of a map that grew out of
+    /// order: a fleet at rest gets the map its keyframes give in sequence order, whatever order
+    /// the network brought them in. `None` when the merger already holds this revision.
+    fn update(&mut self, r: &RobotSnapshot, settle: bool, voxel: f32, visibility: &VisibilityConfig) -> Option<Update> {
         let current =
-            self.maps.get(&r.robot).filter(|m| m.pose_revision == r.basis.pose_revision && (m.in_order || !settle));
+            self.local.as_ref().filter(|m| m.pose_revision == r.basis.pose_revision && (m.in_order || !settle));
         if current.is_some_and(|m| m.revision == r.revision) {
-            return;
+            return None;
         }
         let rebuilt = current.is_none();
         if rebuilt {
-            let map = VoxelMap::new(self.voxel).expect("local_map_voxel is validated positive");
-            let fresh = LocalMap {
+            self.local = Some(LocalMap {
                 revision: 0,
                 pose_revision: r.basis.pose_revision,
                 included: FxHashSet::default(),
                 in_order: true,
                 newest: None,
-                map,
-            };
-            self.maps.insert(r.robot, fresh);
+                map: VoxelMap::new(voxel).expect("local_map_voxel is validated positive"),
+            });
         }
-        let local = self.maps.get_mut(&r.robot).expect("inserted above");
-        let images = self.images.entry(r.robot).or_default();
-        let places = self.places.entry(r.robot).or_default();
+        let local = self.local.as_mut().expect("set above");
+        let (images, places) = (&mut self.images, &mut self.places);
         let missing: Vec<&PlacedKeyframe> = r
             .keyframes
             .iter()
@@ -299,7 +350,7 @@ impl MergeWorker {
             .collect();
         // A piece at a time: a rebuild at new poses decodes every keyframe of the robot.
         for piece in missing.chunks(DECODED_AT_ONCE) {
-            for kf in decode(r.robot, piece, images, &self.merger.config().visibility) {
+            for kf in decode(r.robot, piece, images, visibility) {
                 if let Some(first) = kf.first {
                     images.insert(kf.seq, first.image);
                     places.described.push(Described { seq: kf.seq, context: first.context });
@@ -312,7 +363,6 @@ impl MergeWorker {
                 }
             }
         }
-        let given = places.places(r);
         local.revision = r.revision;
         let cloud = local.map.cloud();
         if settle {
@@ -325,43 +375,16 @@ impl MergeWorker {
                 digest(&cloud)
             );
         }
-        if rebuilt {
-            // At the revision the merger holds when only the order changed.
-            self.merger.rebuild(id, r.revision, cloud);
-        } else {
-            self.merger.grow(id, r.revision, cloud);
-        }
-        let views = self.views(r);
-        self.merger.set_views(id, Arc::new(views));
-        self.merger.set_places(id, given);
+        let places = places.places(r);
+        Some(Update { id: r.robot as usize, revision: r.revision, cloud, rebuilt, views: self.views(r), places })
     }
 
-    /// Per robot, the bytes kept for it between jobs: its local map, its keyframes' range images
-    /// and place descriptors, and the merger's copy of its map with the map's preparation
-    /// (features, Gaussians).
-    pub fn memory(&self) -> BTreeMap<u32, u64> {
-        self.maps
-            .iter()
-            .map(|(&robot, local)| {
-                let images = self.images.get(&robot).map_or(0, |held| {
-                    held.values().map(|i| i.heap_bytes()).sum::<usize>()
-                        + held.len() * std::mem::size_of::<(u64, Arc<RangeImage>)>()
-                });
-                let merger = self.merger.heap_bytes_of(robot as usize).unwrap_or(0);
-                let places = self.places.get(&robot).map_or(0, RobotPlaces::heap_bytes);
-                let included = map_bytes::<u64, ()>(local.included.capacity());
-                (robot, (local.map.heap_bytes() + included + images + places + merger) as u64)
-            })
-            .collect()
-    }
-
-    /// Robot `r`'s keyframes as its sensor saw them, at their current poses.
+    /// The robot's keyframes as its sensor saw them, at the snapshot's poses.
     fn views(&self, r: &RobotSnapshot) -> Views {
-        let images = self.images.get(&r.robot);
         let views = r
             .keyframes
             .iter()
-            .filter_map(|kf| Some(View { pose: kf.pose.cast::<f32>(), image: Arc::clone(images?.get(&kf.seq)?) }))
+            .filter_map(|kf| Some(View { pose: kf.pose.cast::<f32>(), image: Arc::clone(self.images.get(&kf.seq)?) }))
             .collect();
         Views::new(views)
     }
@@ -590,7 +613,7 @@ mod tests {
 
     /// The robot's local map, checked to be what the merger holds.
     fn local_map(worker: &MergeWorker) -> Vec<Point3<f32>> {
-        let points = worker.maps[&ROBOT].map.cloud().points;
+        let points = worker.robots[&ROBOT].local.as_ref().expect("given").map.cloud().points;
         let given = worker.merger.cloud_of(ROBOT as usize).expect("the merger holds the map");
         assert!(given.points == points, "the merger holds another map than the local one");
         points
@@ -601,18 +624,19 @@ mod tests {
         let worker = || MergeWorker::new(MergeConfig::default(), Arc::new(|| {})).unwrap();
         let all = [0, 1, 2, 3];
         let mut ordered = worker();
-        ordered.give(&snapshot_of(&all), false);
+        ordered.give(&[snapshot_of(&all)], false);
         // A gap filled later, as backfill does: 2 comes after 3, 1 after both.
         let mut gapped = worker();
-        gapped.give(&snapshot_of(&[0, 3]), false);
-        gapped.give(&snapshot_of(&[0, 2, 3]), false);
-        gapped.give(&snapshot_of(&all), false);
+        gapped.give(&[snapshot_of(&[0, 3])], false);
+        gapped.give(&[snapshot_of(&[0, 2, 3])], false);
+        gapped.give(&[snapshot_of(&all)], false);
         assert!(local_map(&gapped) != local_map(&ordered), "the keyframes must fill voxels in another order");
-        gapped.give(&snapshot_of(&all), true);
+        gapped.give(&[snapshot_of(&all)], true);
         assert!(local_map(&gapped) == local_map(&ordered), "the settled map is not the in-order one");
         // A map that grew in order is kept as it is by a settle, and stays the same.
-        assert!(ordered.maps[&ROBOT].in_order && gapped.maps[&ROBOT].in_order);
-        ordered.give(&snapshot_of(&all), true);
+        let in_order = |w: &MergeWorker| w.robots[&ROBOT].local.as_ref().is_some_and(|l| l.in_order);
+        assert!(in_order(&ordered) && in_order(&gapped));
+        ordered.give(&[snapshot_of(&all)], true);
         assert!(local_map(&gapped) == local_map(&ordered), "a settle changed a map that grew in order");
     }
 }
