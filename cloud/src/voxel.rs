@@ -25,8 +25,8 @@ impl VoxelKey {
 #[error("voxel size must be positive and finite, got {0}")]
 pub struct InvalidVoxelSize(pub f32);
 
-/// Cells of a grid, each created at the first point that falls in it and kept in that order (what
-/// makes the output of a voxel grid deterministic for a given input).
+/// Numbers the cells of a grid in the order points first fall in them (0, 1, 2, ...): what makes
+/// the output of a voxel grid deterministic for a given input.
 ///
 /// Cells are found through blocks of [`BLOCK_EDGE`]³ neighbouring cells: one hash lookup per block
 /// (none while points stay in the last block), then a dense table. A hash lookup per point missed
@@ -34,12 +34,13 @@ pub struct InvalidVoxelSize(pub f32);
 /// spent most of its time there); points of one scan come in sweep order, and neighbours in a
 /// sweep mostly share a block.
 #[derive(Clone, Debug, Default)]
-struct Cells<T> {
+pub struct CellIndex {
     /// Block coordinates (cell coordinates shifted by [`BLOCK_BITS`]) to an index into `tables`.
     blocks: FxHashMap<[i32; 3], u32>,
-    /// Per block, each cell's index into `cells`, or [`EMPTY`].
+    /// Per block, each cell's number, or [`EMPTY`].
     tables: Vec<[u32; BLOCK_CELLS]>,
-    cells: Vec<T>,
+    /// Cells numbered so far.
+    len: u32,
     /// The block of the last lookup.
     last: Option<([i32; 3], u32)>,
 }
@@ -52,15 +53,16 @@ const BLOCK_CELLS: usize = 1 << (3 * BLOCK_BITS);
 /// An unoccupied cell of a block's table.
 const EMPTY: u32 = u32::MAX;
 
-impl<T> HeapSize for Cells<T> {
+impl HeapSize for CellIndex {
     fn heap_bytes(&self) -> usize {
-        map_bytes::<[i32; 3], u32>(self.blocks.capacity()) + vec_bytes(&self.tables) + vec_bytes(&self.cells)
+        map_bytes::<[i32; 3], u32>(self.blocks.capacity()) + vec_bytes(&self.tables)
     }
 }
 
-impl<T: Default> Cells<T> {
-    /// The cell of `key`, created empty if it is new.
-    fn at(&mut self, VoxelKey(key): VoxelKey) -> &mut T {
+impl CellIndex {
+    /// The number of `key`'s cell, and whether the cell is new (then its number is the count of
+    /// cells before it).
+    pub fn number(&mut self, VoxelKey(key): VoxelKey) -> (u32, bool) {
         // Arithmetic shifts floor negative coordinates too: cell -1 is in block -1.
         let block = key.map(|c| c >> BLOCK_BITS);
         let table = match self.last {
@@ -77,12 +79,55 @@ impl<T: Default> Cells<T> {
         };
         let [x, y, z] = key.map(|c| (c & (BLOCK_EDGE - 1)) as usize);
         let slot = &mut self.tables[table as usize][x | y << BLOCK_BITS | z << (2 * BLOCK_BITS)];
-        if *slot == EMPTY {
-            // Cell indices fit u32: a grid of 4 billion cells would not fit in memory.
-            *slot = self.cells.len() as u32;
+        if *slot != EMPTY {
+            return (*slot, false);
+        }
+        // Cell numbers fit u32: a grid of 4 billion cells would not fit in memory.
+        *slot = self.len;
+        self.len += 1;
+        (*slot, true)
+    }
+
+    /// Cells numbered.
+    pub fn len(&self) -> usize {
+        self.len as usize
+    }
+
+    /// True when no cell is numbered.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Forgets every cell (keeping the memory of the block list).
+    pub fn clear(&mut self) {
+        self.blocks.clear();
+        self.tables.clear();
+        self.len = 0;
+        self.last = None;
+    }
+}
+
+/// Cells of a grid with a value each, in the order of [`CellIndex`].
+#[derive(Clone, Debug, Default)]
+struct Cells<T> {
+    index: CellIndex,
+    cells: Vec<T>,
+}
+
+impl<T> HeapSize for Cells<T> {
+    fn heap_bytes(&self) -> usize {
+        self.index.heap_bytes() + vec_bytes(&self.cells)
+    }
+}
+
+impl<T: Default> Cells<T> {
+    /// The cell of `key`, created empty if it is new.
+    fn at(&mut self, key: VoxelKey) -> &mut T {
+        let (n, new) = self.index.number(key);
+        if new {
             self.cells.push(T::default());
         }
-        &mut self.cells[*slot as usize]
+        &mut self.cells[n as usize]
     }
 }
 

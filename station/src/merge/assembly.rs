@@ -26,12 +26,11 @@
 
 use std::collections::BTreeMap;
 
-use cloud::memory::{HeapSize, map_bytes, vec_bytes};
-use cloud::voxel::VoxelKey;
+use cloud::memory::{HeapSize, vec_bytes};
+use cloud::voxel::{CellIndex, VoxelKey};
 use cloud::{Channels, PointCloud};
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
-use rustc_hash::FxHashMap;
 
 /// One map as the merge placed it.
 pub(super) struct Placed<'a> {
@@ -52,7 +51,8 @@ pub(super) struct Assembly {
     tolerance: f64,
     /// The grid's frame in the global frame.
     frame: Isometry3<f64>,
-    slot: FxHashMap<VoxelKey, u32>,
+    /// Each voxel's index into `voxels`.
+    slot: CellIndex,
     voxels: Vec<Fused>,
     /// Voxels holding at least one point.
     live: usize,
@@ -118,7 +118,7 @@ impl Assembly {
             inv_size: 1.0 / voxel,
             tolerance: f64::from(voxel) / 10.0,
             frame: Isometry3::identity(),
-            slot: FxHashMap::default(),
+            slot: CellIndex::default(),
             voxels: Vec::new(),
             live: 0,
             contributions: BTreeMap::new(),
@@ -245,9 +245,8 @@ impl Assembly {
         let intensities = p.cloud.intensity.as_ref().filter(|_| self.intensity).map(|i| &i[c.taken..]);
         c.taken = p.cloud.len();
         for (k, q) in fresh.iter().enumerate() {
-            let next = self.voxels.len() as u32;
-            let cell = *self.slot.entry(VoxelKey::of(q, self.inv_size)).or_insert(next);
-            if cell == next {
+            let (cell, new) = self.slot.number(VoxelKey::of(q, self.inv_size));
+            if new {
                 self.voxels.push(Fused { sum: [0.0; 3], intensity: 0.0, count: 0, label: NO_LABEL });
             }
             let v = &mut self.voxels[cell as usize];
@@ -291,9 +290,8 @@ impl Assembly {
         for (id, mut c) in contributions {
             c.cells.clear();
             for (k, q) in c.points.iter().enumerate() {
-                let next = self.voxels.len() as u32;
-                let cell = *self.slot.entry(VoxelKey::of(q, self.inv_size)).or_insert(next);
-                if cell == next {
+                let (cell, new) = self.slot.number(VoxelKey::of(q, self.inv_size));
+                if new {
                     self.voxels.push(Fused { sum: [0.0; 3], intensity: 0.0, count: 0, label: id });
                     self.live += 1;
                 }
@@ -339,7 +337,7 @@ impl Assembly {
 
 impl HeapSize for Assembly {
     fn heap_bytes(&self) -> usize {
-        map_bytes::<VoxelKey, u32>(self.slot.capacity())
+        self.slot.heap_bytes()
             + vec_bytes(&self.voxels)
             + self.contributions.values().map(HeapSize::heap_bytes).sum::<usize>()
     }
