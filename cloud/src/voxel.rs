@@ -88,16 +88,6 @@ impl CellIndex {
         (*slot, true)
     }
 
-    /// Cells numbered.
-    pub fn len(&self) -> usize {
-        self.len as usize
-    }
-
-    /// True when no cell is numbered.
-    pub fn is_empty(&self) -> bool {
-        self.len == 0
-    }
-
     /// Forgets every cell (keeping the memory of the block list).
     pub fn clear(&mut self) {
         self.blocks.clear();
