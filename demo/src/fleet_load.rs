@@ -133,6 +133,9 @@ pub struct LoadReport {
     pub catch_up_s: f64,
     /// Robots merged in the final map.
     pub merged_robots: usize,
+    /// From the first keyframe published to the first published global map that merges every
+    /// robot, seconds (`None` when none did): how soon the fleet shares one map.
+    pub all_merged_s: Option<f64>,
     /// How far the final map places each merged robot from the truth, metres and degrees (over
     /// the merged robots but its reference; `None` when it merged no other).
     pub placement_error: Option<PlacementError>,
@@ -277,6 +280,7 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
         tokio::spawn(observe(rig.station.progress(), rig.maps, Arc::clone(&published), Arc::clone(&frames), stopped));
     let rss_start = rss_mb();
     info!("publishing for {} s", config.seconds);
+    let publishing_from = Instant::now();
     let publishing = publish_all(rig.robots, payloads, &config, &published).await?;
     let sent = published.load(Ordering::Relaxed);
     let mut progress = rig.station.progress();
@@ -311,6 +315,7 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
         unmapped: observed.latencies.unmapped(),
         catch_up_s,
         merged_robots,
+        all_merged_s: observed.all_merged.map(|at| at.saturating_duration_since(publishing_from).as_secs_f64()),
         placement_error,
         worst_published_error: observed.worst_error,
         rss_mb,
@@ -461,6 +466,8 @@ struct Observed {
     queue_max: u32,
     /// The worst placement error of a published map.
     worst_error: Option<PlacementError>,
+    /// When the first map merging every robot was received.
+    all_merged: Option<Instant>,
 }
 
 impl Observed {
@@ -502,6 +509,9 @@ async fn observe(
                 match GlobalMap::decode(&*sample.payload().to_bytes()) {
                     Ok(map) => {
                         seen.latencies.mapped(&map, at);
+                        if seen.all_merged.is_none() && merges_all(&map, frames.len()) {
+                            seen.all_merged = Some(at);
+                        }
                         seen.worst_error = PlacementError::worse(seen.worst_error, PlacementError::of(&map, &frames));
                     }
                     Err(e) => warn!("cannot decode a global map: {e}"),
@@ -519,6 +529,12 @@ async fn observe(
         }
     }
     seen
+}
+
+/// Whether `map` places all `robots` robots, each merged.
+fn merges_all(map: &GlobalMap, robots: usize) -> bool {
+    let merged = map.robots.iter().filter(|r| r.status() == proto::MergeStatus::Merged).count();
+    merged == robots
 }
 
 /// Each keyframe's latency from its arrival at the station to the first published map holding it.
@@ -584,11 +600,13 @@ impl fmt::Display for LoadReport {
         )?;
         writeln!(
             f,
-            "{} merges, {}; merge queue at most {}; {} robots merged",
+            "{} merges, {}; merge queue at most {}; {} robots merged ({})",
             self.merges,
             spread(self.merge_ms),
             self.queue_max,
-            self.merged_robots
+            self.merged_robots,
+            self.all_merged_s
+                .map_or("never all in one map".into(), |s| format!("all of them {s:.1} s after the first keyframe"))
         )?;
         writeln!(f, "{} rounds of estimation beside them, {}", self.rounds, spread(self.round_ms))?;
         writeln!(

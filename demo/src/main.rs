@@ -105,7 +105,7 @@ enum Bench {
         scenario: String,
         /// Print the figures as one JSON object on stdout's last line instead of text: robots, sent,
         /// received, mean_payload_bytes, received_per_s, max_backlog, queue_max, merges, merge_ms
-        /// and latency_ms ({p50, p95, max}, nearest rank), unmapped, catch_up_s, merged_robots,
+        /// and latency_ms ({p50, p95, max}, nearest rank), unmapped, catch_up_s, merged_robots, all_merged_s,
         /// rss_mb ({start, end, peak}).
         #[arg(long)]
         json: bool,

@@ -40,6 +40,13 @@ fn a_small_fleet_reports_every_keyframe_merged_with_its_latency() {
     for field in ["mean_payload_bytes", "received_per_s", "max_backlog", "catch_up_s", "merged_robots"] {
         number(&report, &[field]);
     }
+    // The final map is received too: when it merges every robot, a map that merged them all was seen.
+    assert!(report.get("all_merged_s").is_some(), "all_merged_s, null when no map merged every robot: {report}");
+    let all_merged = report["all_merged_s"].as_f64();
+    if number(&report, &["merged_robots"]) == 2.0 {
+        assert!(all_merged.is_some(), "{report}");
+    }
+    assert!(all_merged.is_none_or(|s| s > 0.0), "{report}");
 }
 
 #[test]

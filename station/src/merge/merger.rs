@@ -9,7 +9,9 @@
 //! changes, a linked pair is tracked from its last transform ([`super::track_pair`], VGICP: tens of
 //! milliseconds) and searched again by global registration only when tracking fails its checks or
 //! a map has grown by [`MergeConfig::reverify_growth`] since the link was found; pairs never linked
-//! are searched at most [`MergeConfig::max_searches`] per round, the longest-waiting first.
+//! are searched at most [`MergeConfig::max_searches`] per round, those likeliest to place an unplaced
+//! map first (a placed and an unplaced map whose places look alike), the longest-waiting first
+//! among equals.
 //!
 //! That estimation is a [`Round`]: planned from the merger's state ([`Merger::plan`]), run on its
 //! own ([`Round::run`], no access to the merger) and taken back ([`Merger::apply`]). The global

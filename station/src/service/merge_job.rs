@@ -221,6 +221,7 @@ impl MergeWorker {
     ) -> Result<MergeOutcome, MergeError> {
         let clock = Instant::now();
         self.give(robots, settle);
+        let keyframes = clock.elapsed();
         if settle {
             self.merger.settle();
         } else {
@@ -233,9 +234,10 @@ impl MergeWorker {
             self.estimator.start(next);
         }
         let report = self.merger.compose()?;
-        log_report(&report, round.as_ref());
+        let message = Instant::now();
         let map = global_map(fleet, revision, &report, robots);
         let bytes = map.encode_to_vec();
+        log_report(&report, round.as_ref(), keyframes, message.elapsed());
         let basis = robots.iter().map(|r| (r.robot, r.basis)).collect();
         // Map ids are robot ids (see `RobotSnapshot::robot`).
         let cloud = MapCloud { robots: report.origins.iter().map(|&id| id as u32).collect(), cloud: report.global_map };
@@ -459,7 +461,9 @@ fn digest(cloud: &PointCloud) -> u64 {
 }
 
 /// Why pairs were refused and where the time went: what an operator needs when a robot stays out.
-fn log_report(report: &MergeReport, round: Option<&RoundTiming>) {
+/// `keyframes` is the time spent bringing the robots' local maps up to their snapshots,
+/// `message` the time spent making and encoding the published message.
+fn log_report(report: &MergeReport, round: Option<&RoundTiming>, keyframes: Duration, message: Duration) {
     let id = |position: usize| report.maps[position].id;
     for pair in report.pairs.iter().filter(|p| !p.cached) {
         match &pair.verdict {
@@ -507,7 +511,13 @@ fn log_report(report: &MergeReport, round: Option<&RoundTiming>) {
             ms(r.total)
         );
     }
-    tracing::info!("merge: graph {:.0} ms, assembly {:.0} ms", ms(t.graph), ms(t.assemble));
+    tracing::info!(
+        "merge: keyframes {:.0} ms, graph {:.0} ms, assembly {:.0} ms, message {:.0} ms",
+        ms(keyframes),
+        ms(t.graph),
+        ms(t.assemble),
+        ms(message)
+    );
 }
 
 /// The finest voxel any merge stage works at: coarser local maps would starve it, finer ones only
