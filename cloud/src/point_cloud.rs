@@ -92,11 +92,17 @@ impl PointCloud {
 
     /// The points at `indices`, in that order, with their channels.
     pub fn select(&self, indices: &[usize]) -> PointCloud {
-        let mut out = PointCloud::with_capacity(indices.len(), self.channels());
-        for &i in indices {
-            out.push_from(self, i);
+        // Channel by channel: a gather per channel without a branch or capacity check per point
+        // (the codec reorders million-point maps through this; a push per point took twice as long).
+        fn gather<T: Copy>(values: &[T], indices: &[usize]) -> Vec<T> {
+            indices.iter().map(|&i| values[i]).collect()
         }
-        out
+        PointCloud {
+            points: gather(&self.points, indices),
+            intensity: self.intensity.as_deref().map(|v| gather(v, indices)),
+            ring: self.ring.as_deref().map(|v| gather(v, indices)),
+            time: self.time.as_deref().map(|v| gather(v, indices)),
+        }
     }
 
     /// Checks the invariant: channel lengths match and all positions are finite.
