@@ -32,7 +32,7 @@ use serde::Serialize;
 use sim::{Scenario, SimConfig, Simulator};
 use station::service::{RobotMemory, Station, StationConfig, StationError, StationProgress};
 use tokio::sync::{oneshot, watch};
-use tracing::{info, warn};
+use tracing::{debug, info, warn};
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
@@ -271,6 +271,14 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
     })
     .await
     .map_err(|e| LoadError::Prepare(e.to_string()))??;
+    for (a, fa) in &frames {
+        for (b, fb) in frames.range(a + 1..) {
+            // What the station's "best placement" of a refused pair is to be read against.
+            let t = fa.inverse() * fb;
+            let (v, yaw) = (t.translation.vector, t.rotation.euler_angles().2.to_degrees());
+            debug!("robots {a} and {b}: truth ({:.2}, {:.2}, {:.2}) m, yaw {yaw:.1} deg", v.x, v.y, v.z);
+        }
+    }
     let frames = Arc::new(frames);
     let bytes: usize = payloads.iter().flatten().map(Vec::len).sum();
     let rig = Rig::start(&config).await?;
