@@ -302,10 +302,7 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
     let _ = stop.send(progress.borrow().revision);
     let observed = observer.await.map_err(|e| LoadError::Network(e.to_string()))?;
     let summary = rig.station.stop().await?;
-    let merged_robots = summary
-        .global_map
-        .as_ref()
-        .map_or(0, |m| m.robots.iter().filter(|r| r.status() == proto::MergeStatus::Merged).count());
+    let merged_robots = summary.global_map.as_ref().map_or(0, merged_count);
     let placement_error = summary.global_map.as_ref().and_then(|m| PlacementError::of(m, &frames));
     Ok(LoadReport {
         robots: config.robots,
@@ -539,10 +536,14 @@ async fn observe(
     seen
 }
 
-/// Whether `map` places all `robots` robots, each merged.
+/// The robots `map` merges.
+fn merged_count(map: &GlobalMap) -> usize {
+    map.robots.iter().filter(|r| r.status() == proto::MergeStatus::Merged).count()
+}
+
+/// Whether `map` merges all `robots` robots.
 fn merges_all(map: &GlobalMap, robots: usize) -> bool {
-    let merged = map.robots.iter().filter(|r| r.status() == proto::MergeStatus::Merged).count();
-    merged == robots
+    merged_count(map) == robots
 }
 
 /// Each keyframe's latency from its arrival at the station to the first published map holding it.
