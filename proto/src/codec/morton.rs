@@ -10,10 +10,10 @@ const BITS: u32 = 21;
 /// Coordinates are taken relative to the minimum corner and, if the cloud spans more steps than
 /// the code has bits per axis, shifted right until it fits: coarser cells only affect the order,
 /// not the values. Each code carries its point's index in its low bits, so that one `u64` sort
-/// orders them (half the memory a code and index pair moves: a shuffled 1.6 M-point grid encoded in
-/// 126 ms instead of 145); the
-/// code keeps 21 bits per axis while `3 * 21` bits and the index fit, fewer beyond (a million
-/// points: 14 bits, cells of 2 cm across 300 m, far finer than the voxel maps it orders).
+/// orders them (half the memory a code and index pair moves: a shuffled 1.6 M-point grid encoded
+/// in 126 ms instead of 145). The code keeps 21 bits per axis while `3 * 21` bits and the index
+/// fit, fewer beyond (a million points: 14 bits, cells of 2 cm across 300 m, far finer than the
+/// voxel maps it orders).
 pub(crate) fn order(q: impl Iterator<Item = [i32; 3]> + Clone) -> Vec<usize> {
     let Some(min) = q.clone().reduce(|m, p| std::array::from_fn(|k| m[k].min(p[k]))) else {
         return Vec::new();
