@@ -5,6 +5,7 @@
 //! (the benchmarks, [`registration::bench`] and [`global::bench`], read their data through them).
 
 pub mod alignment;
+pub mod changed;
 pub mod confidence;
 pub mod eigen3;
 pub mod formats;

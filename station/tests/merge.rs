@@ -298,3 +298,26 @@ fn a_small_shared_part_of_two_large_maps_is_linked_around_its_place() {
     let refused = estimate_pair((0, &a), (1, &b), &config, Some(&wrong));
     assert!(refused.edge().is_none(), "{refused:?}");
 }
+
+#[test]
+fn a_grown_map_is_prepared_as_if_anew_from_the_parts_that_changed() {
+    // A yard seen in part, then whole (a few points of the first part moved or gone).
+    let (older, newer) = testkit::yard_seen_then_whole(31, 90.0, 5.0);
+    for config in [MergeConfig::outdoor(), MergeConfig::indoor()] {
+        let earlier = PreparedMap::new(PointCloud::from_points(older.clone()), None, &config);
+        let grown = PreparedMap::grown(PointCloud::from_points(newer.clone()), None, &config, &earlier);
+        let anew = PreparedMap::new(PointCloud::from_points(newer.clone()), None, &config);
+        let levels = [(&grown.fine, &anew.fine, grown.reused.fine), (&grown.finish, &anew.finish, grown.reused.finish)];
+        for (level, (g, a, reused)) in levels.into_iter().enumerate() {
+            let (Some(g), Some(a)) = (g, a) else {
+                assert!(g.is_none() && a.is_none() && reused == 0, "level {level}: both or neither");
+                continue;
+            };
+            assert_eq!(g.len(), a.len());
+            assert!((0..g.len()).all(|i| g.covariance_of(i) == a.covariance_of(i)), "level {level}");
+            // Half the grown map is the first part, most of it far from every change.
+            assert!(reused > g.len() / 4 && reused < g.len() / 2, "level {level}: {reused} of {}", g.len());
+        }
+        assert!(grown.fine.is_some(), "the refinement level is always prepared");
+    }
+}

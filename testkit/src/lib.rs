@@ -9,4 +9,4 @@ mod scene;
 pub use data::shared_data;
 pub use pose::{check_pose_close, pose_from_axis_angle, pose_from_yaw_deg};
 pub use rng::Rng;
-pub use scene::{boxes_around, yard, yards_sharing_one};
+pub use scene::{boxes_around, yard, yard_seen_then_whole, yards_sharing_one};

@@ -50,6 +50,24 @@ pub fn yard(seed: u64, size: f32, per_m2: f32) -> Vec<Point3<f32>> {
     points
 }
 
+/// A [`yard`] seen in part (x below half its size), then whole, as a robot's map grows: the
+/// first part's points stay where they were and in their order, but for one in a thousand moved a
+/// centimetre and one in a thousand gone (a voxel map's centroids as a robot passes again); the
+/// rest of the yard follows them. Returns (older, newer).
+pub fn yard_seen_then_whole(seed: u64, size: f32, per_m2: f32) -> (Vec<Point3<f32>>, Vec<Point3<f32>>) {
+    let yard = yard(seed, size, per_m2);
+    let half = size / 2.0;
+    let older: Vec<Point3<f32>> = yard.iter().filter(|p| p.x < half).copied().collect();
+    let mut newer: Vec<Point3<f32>> = older
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| i % 997 != 5)
+        .map(|(i, p)| if i % 1009 == 3 { p + Vector3::new(0.01, 0.0, 0.0) } else { *p })
+        .collect();
+    newer.extend(yard.iter().filter(|p| p.x >= half));
+    (older, newer)
+}
+
 /// Two maps that share a small part: each holds the same 40 m yard at its origin and a 100 m yard
 /// of its own beside it (the target's to +x, the source's to -x); the source is seen from a frame
 /// `truth` away (its points are `truth⁻¹` of the world's), so `truth` maps it into the target.

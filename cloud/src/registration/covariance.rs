@@ -33,7 +33,9 @@ pub fn estimate_covariances_with(tree: &KdTree, points: &[Point3<f32>], k: usize
 }
 
 /// The plane-regularised covariance of a set of points, or the identity when they are too few.
-fn neighbourhood_covariance<'a>(points: impl ExactSizeIterator<Item = &'a Point3<f32>> + Clone) -> Matrix3<f64> {
+pub(crate) fn neighbourhood_covariance<'a>(
+    points: impl ExactSizeIterator<Item = &'a Point3<f32>> + Clone,
+) -> Matrix3<f64> {
     let n = points.len();
     if n < MIN_NEIGHBOURS {
         return Matrix3::identity();

@@ -1,8 +1,10 @@
 //! What a source point is matched against: Gaussians found by nearest-neighbour search.
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
+use rayon::prelude::*;
 
-use super::covariance::{PLANE_EPSILON, estimate_covariances_with};
+use super::covariance::{PLANE_EPSILON, estimate_covariances_with, neighbourhood_covariance};
+use crate::changed::ChangedPoints;
 use crate::kdtree::{KdTree, gate_radius};
 use crate::memory::{HeapSize, vec_bytes};
 
@@ -92,6 +94,25 @@ pub struct GaussianCloud {
     points: Vec<Point3<f32>>,
     covariances: Vec<PackedCovariance>,
     tree: KdTree,
+    /// How each covariance was estimated, when it may be estimated again for a grown cloud
+    /// ([`GaussianCloud::growable`]).
+    radii: Option<NeighbourhoodRadii>,
+}
+
+/// Each point's neighbourhood radius (the distance to the farthest of the `neighbours` nearest
+/// points its covariance was estimated from; infinite when the cloud had fewer): a change farther
+/// than that from a point leaves its covariance as it was.
+struct NeighbourhoodRadii {
+    neighbours: usize,
+    radii: Vec<f32>,
+}
+
+/// A [`GaussianCloud`] estimated again for a cloud that changed: [`GaussianCloud::regrown`].
+pub struct Regrown {
+    /// The cloud, as [`GaussianCloud::growable`] would give it.
+    pub cloud: GaussianCloud,
+    /// Covariances taken over unchanged from the earlier cloud.
+    pub reused: usize,
 }
 
 impl GaussianCloud {
@@ -100,7 +121,51 @@ impl GaussianCloud {
         let tree = KdTree::from_points(points);
         let covariances =
             estimate_covariances_with(&tree, points, neighbours).iter().map(PackedCovariance::pack).collect();
-        GaussianCloud { points: points.to_vec(), covariances, tree }
+        GaussianCloud { points: points.to_vec(), covariances, tree, radii: None }
+    }
+
+    /// [`GaussianCloud::new`] that also keeps each point's neighbourhood radius (4 bytes a point),
+    /// so that once the cloud has grown [`GaussianCloud::regrown`] re-estimates only the
+    /// covariances a change can reach.
+    pub fn growable(points: &[Point3<f32>], neighbours: usize) -> Self {
+        Self::regrown(None, points, neighbours).cloud
+    }
+
+    /// The growable cloud of `points`, the same covariances as [`GaussianCloud::new`] gives, taking
+    /// over from `previous` (growable, of the same `neighbours`) every covariance whose
+    /// neighbourhood holds no added, moved or removed point: a robot's map grown by a keyframe
+    /// costs the keyframe's surroundings, not the whole map.
+    pub fn regrown(previous: Option<&GaussianCloud>, points: &[Point3<f32>], neighbours: usize) -> Regrown {
+        let tree = KdTree::from_points(points);
+        let earlier = previous.and_then(|p| {
+            let radii = p.radii.as_ref().filter(|r| r.neighbours == neighbours)?;
+            Some((p, radii, ChangedPoints::between(&p.points, points)))
+        });
+        let estimated: Vec<(PackedCovariance, f32, bool)> = points
+            .par_iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let kept = earlier.as_ref().and_then(|(cloud, radii, changed)| {
+                    let twin = changed.twin(i)?;
+                    let twin = changed.unchanged_within(i, radii.radii[twin])?;
+                    Some((cloud.covariances[twin], radii.radii[twin], true))
+                });
+                kept.unwrap_or_else(|| {
+                    let found = tree.knn(&[p.x, p.y, p.z], neighbours);
+                    let radius = match found.last() {
+                        Some(far) if found.len() == neighbours => far.dist_sq.sqrt(),
+                        // Fewer points than neighbours: any point added anywhere joins.
+                        _ => f32::INFINITY,
+                    };
+                    let covariance = neighbourhood_covariance(found.iter().map(|n| &points[n.index]));
+                    (PackedCovariance::pack(&covariance), radius, false)
+                })
+            })
+            .collect();
+        let reused = estimated.iter().filter(|e| e.2).count();
+        let (covariances, radii) = estimated.into_iter().map(|(c, r, _)| (c, r)).unzip();
+        let radii = Some(NeighbourhoodRadii { neighbours, radii });
+        Regrown { cloud: GaussianCloud { points: points.to_vec(), covariances, tree, radii }, reused }
     }
 
     /// Points with covariances estimated elsewhere (e.g. each in its own cloud's frame and moved
@@ -109,7 +174,7 @@ impl GaussianCloud {
     pub fn from_parts(points: Vec<Vector3<f64>>, mut covariances: Vec<PackedCovariance>) -> Self {
         covariances.resize(points.len(), PackedCovariance::default());
         let points: Vec<Point3<f32>> = points.iter().map(|p| Point3::from(p.cast::<f32>())).collect();
-        GaussianCloud { tree: KdTree::from_points(&points), points, covariances }
+        GaussianCloud { tree: KdTree::from_points(&points), points, covariances, radii: None }
     }
 
     /// The points and covariances moved by `pose` (`p ↦ T p`, `C ↦ R C Rᵀ`), without a tree: parts
@@ -155,6 +220,7 @@ impl GaussianCloud {
             points: self.points.iter().step_by(step).copied().collect(),
             covariances: self.covariances.iter().step_by(step).copied().collect(),
             tree: KdTree::new(&[]),
+            radii: None,
         }
     }
 
@@ -176,7 +242,10 @@ impl GaussianCloud {
 
 impl HeapSize for GaussianCloud {
     fn heap_bytes(&self) -> usize {
-        vec_bytes(&self.points) + vec_bytes(&self.covariances) + self.tree.heap_bytes()
+        vec_bytes(&self.points)
+            + vec_bytes(&self.covariances)
+            + self.tree.heap_bytes()
+            + self.radii.as_ref().map_or(0, |r| vec_bytes(&r.radii))
     }
 }
 
@@ -223,5 +292,29 @@ mod tests {
         let n = PackedCovariance::pack(&c).unit_normal().unwrap();
         assert!((n.dot(&axis).abs() - 1.0).abs() < 1e-6, "{n} vs {axis}");
         assert_eq!(PackedCovariance::pack(&Matrix3::identity()).unit_normal(), None);
+    }
+
+    #[test]
+    fn a_regrown_cloud_has_the_covariances_of_one_estimated_anew() {
+        for reversed in [false, true] {
+            let (older, mut newer) = testkit::yard_seen_then_whole(21, 80.0, 4.0);
+            if reversed {
+                newer.reverse();
+            }
+            let earlier = GaussianCloud::growable(&older, 20);
+            let grown = GaussianCloud::regrown(Some(&earlier), &newer, 20);
+            let anew = GaussianCloud::new(&newer, 20);
+            assert_eq!(grown.cloud.len(), newer.len());
+            for i in 0..newer.len() {
+                assert_eq!(grown.cloud.covariances[i], anew.covariances[i], "point {i} of {}", newer.len());
+            }
+            // Most of the first part is far from every change; the new part is all estimated.
+            let first_part = newer.iter().filter(|p| p.x < 40.0).count();
+            assert!(grown.reused > first_part / 2 && grown.reused < first_part, "{} of {first_part}", grown.reused);
+            // Other neighbourhoods: nothing can be taken over.
+            let other = GaussianCloud::regrown(Some(&earlier), &newer, 10);
+            assert_eq!(other.reused, 0);
+            assert!(other.cloud.covariances == GaussianCloud::new(&newer, 10).covariances);
+        }
     }
 }

@@ -29,6 +29,18 @@ pub struct PreparedMap {
     /// What the robot's sensor saw, keyframe by keyframe, when the map came with it
     /// ([`super::Merger::set_views`]): the free space another map placed here must respect.
     pub views: Option<Arc<Views>>,
+    /// Points whose results were taken over from the preparation it grew from
+    /// ([`PreparedMap::grown`]).
+    pub reused: Reused,
+}
+
+/// Points of a preparation taken over from an earlier one, per product.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Reused {
+    /// Covariances of [`PreparedMap::fine`].
+    pub fine: usize,
+    /// Covariances of [`PreparedMap::finish`].
+    pub finish: usize,
 }
 
 impl HeapSize for PreparedMap {
@@ -44,7 +56,23 @@ impl HeapSize for PreparedMap {
 impl PreparedMap {
     /// Drops non-finite points, then computes the features and the VGICP Gaussians concurrently;
     /// `views` are the map's keyframe views, if known.
-    pub fn new(mut cloud: PointCloud, views: Option<Arc<Views>>, config: &MergeConfig) -> Self {
+    pub fn new(cloud: PointCloud, views: Option<Arc<Views>>, config: &MergeConfig) -> Self {
+        Self::prepare(cloud, views, config, None)
+    }
+
+    /// The preparation of `cloud`, a later revision of the map `earlier` was prepared from: the
+    /// same as [`PreparedMap::new`] gives, with every result whose neighbourhood did not change
+    /// taken over from `earlier` (a map grown by keyframes is estimated again around them only).
+    pub fn grown(cloud: PointCloud, views: Option<Arc<Views>>, config: &MergeConfig, earlier: &PreparedMap) -> Self {
+        Self::prepare(cloud, views, config, Some(earlier))
+    }
+
+    fn prepare(
+        mut cloud: PointCloud,
+        views: Option<Arc<Views>>,
+        config: &MergeConfig,
+        earlier: Option<&PreparedMap>,
+    ) -> Self {
         let dropped_non_finite = cloud.retain_finite();
         let ((features, coarse), (fine, finish)) = rayon::join(
             || {
@@ -55,12 +83,21 @@ impl PreparedMap {
             },
             || {
                 rayon::join(
-                    || gaussians(&cloud, config.refine_voxel, config.refine.neighbours),
-                    || config.finish.as_ref().and_then(|f| gaussians(&cloud, f.voxel, f.registration.neighbours)),
+                    || {
+                        let earlier = earlier.and_then(|e| e.fine.as_ref());
+                        gaussians(&cloud, config.refine_voxel, config.refine.neighbours, earlier)
+                    },
+                    || {
+                        let earlier = earlier.and_then(|e| e.finish.as_ref());
+                        let f = config.finish.as_ref()?;
+                        gaussians(&cloud, f.voxel, f.registration.neighbours, earlier)
+                    },
                 )
             },
         );
-        Self { points: cloud.len(), dropped_non_finite, features, coarse, fine, finish, views }
+        let reused = Reused { fine: fine.as_ref().map_or(0, |g| g.1), finish: finish.as_ref().map_or(0, |g| g.1) };
+        let (fine, finish) = (fine.map(|g| g.0), finish.map(|g| g.0));
+        Self { points: cloud.len(), dropped_non_finite, features, coarse, fine, finish, views, reused }
     }
 
     /// The features if the map is usable.
@@ -75,9 +112,17 @@ impl PreparedMap {
 }
 
 /// The map downsampled to `voxel` with covariances over `neighbours` points, if enough points
-/// remain to fix a pose.
-fn gaussians(cloud: &PointCloud, voxel: f32, neighbours: usize) -> Option<GaussianCloud> {
+/// remain to fix a pose, and how many covariances were taken over from `earlier`.
+fn gaussians(
+    cloud: &PointCloud,
+    voxel: f32,
+    neighbours: usize,
+    earlier: Option<&GaussianCloud>,
+) -> Option<(GaussianCloud, usize)> {
     let down = downsample(cloud, voxel).ok()?;
     // Covariances need a neighbourhood; fewer points than neighbours gives no usable shape.
-    (down.len() >= MIN_POINTS.max(neighbours)).then(|| GaussianCloud::new(&down.points, neighbours))
+    (down.len() >= MIN_POINTS.max(neighbours)).then(|| {
+        let grown = GaussianCloud::regrown(earlier, &down.points, neighbours);
+        (grown.cloud, grown.reused)
+    })
 }

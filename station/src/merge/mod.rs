@@ -79,7 +79,7 @@ use crate::pairwise::{FeatureError, PairwiseConfig};
 use places::PlaceConfig;
 
 pub use estimate::{Edge, PairRejection, PairVerdict, estimate_pair, keep_link, track_pair};
-pub use map::PreparedMap;
+pub use map::{PreparedMap, Reused};
 pub use merger::{Merger, MergerStats, Round, RoundTiming};
 
 /// Default edge threshold of [`MergeConfig::outdoor`].

@@ -244,7 +244,13 @@ impl Round {
             .par_iter()
             .map(|id| {
                 let map = &self.maps[id];
-                (*id, PreparedMap::new(PointCloud::clone(&map.cloud), map.views.clone(), config))
+                let cloud = PointCloud::clone(&map.cloud);
+                // A map that only grew is estimated again around its changes only.
+                let prepared = match map.prepared.as_ref().filter(|_| !map.reshaped) {
+                    Some(earlier) => PreparedMap::grown(cloud, map.views.clone(), config, &earlier.map),
+                    None => PreparedMap::new(cloud, map.views.clone(), config),
+                };
+                (*id, prepared)
             })
             .collect();
         for (id, prepared) in fresh {
