@@ -7,21 +7,17 @@
 //! how the map was built: any change, anywhere, shows as the points around it.
 
 use nalgebra::Point3;
-use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
-use crate::kdtree::KdTree;
+use crate::kdtree::{KdTree, gate_radius};
 
-/// The points of the newer revision, each with its twin in the older one (the same coordinates)
-/// and its distance to the nearest change.
+/// The points of the newer revision, each with its twin in the older one (the same coordinates),
+/// and where the points that changed are.
 pub struct ChangedPoints {
     /// Per newer point, the index of the older point at the same coordinates, if any.
     twins: Vec<Option<u32>>,
-    /// Per newer point, the distance to the nearest point that was added, moved or removed
-    /// (infinite when nothing changed); 0 for a point that is itself new.
-    distance: Vec<f32>,
-    /// Points added, moved or removed.
-    changes: usize,
+    /// Points added, moved (at both places) or removed.
+    changed: KdTree,
 }
 
 impl ChangedPoints {
@@ -43,16 +39,7 @@ impl ChangedPoints {
         let added = newer.iter().zip(&twins).filter(|(_, t)| t.is_none()).map(|(p, _)| *p);
         let removed = older.iter().zip(&matched).filter(|(_, m)| !**m).map(|(p, _)| *p);
         let changed: Vec<Point3<f32>> = added.chain(removed).collect();
-        let tree = KdTree::from_points(&changed);
-        let distance = newer
-            .par_iter()
-            .zip(&twins)
-            .map(|(p, twin)| match twin {
-                None => 0.0,
-                Some(_) => tree.nearest(&[p.x, p.y, p.z]).map_or(f32::INFINITY, |n| n.dist_sq.sqrt()),
-            })
-            .collect();
-        Self { twins, distance, changes: changed.len() }
+        Self { twins, changed: KdTree::from_points(&changed) }
     }
 
     /// The older point at the coordinates of newer point `i`, if one was there.
@@ -60,20 +47,19 @@ impl ChangedPoints {
         self.twins[i].map(|t| t as usize)
     }
 
-    /// The older twin of newer point `i` when no change lies within `radius` of it (inclusive):
-    /// what it computed over a neighbourhood of that radius holds as it was.
-    pub fn unchanged_within(&self, i: usize, radius: f32) -> Option<usize> {
-        self.twin(i).filter(|_| self.distance[i] > radius)
-    }
-
-    /// Distance from newer point `i` to the nearest change, metres (0 for a new point).
-    pub fn distance(&self, i: usize) -> f32 {
-        self.distance[i]
+    /// The older twin of newer point `i` (at `at`) when no change lies within `radius_sq` (a
+    /// squared distance, inclusive) of it: what it computed over that neighbourhood holds as it was.
+    /// A bounded search: most points ask about a few decimetres.
+    pub fn unchanged_within(&self, i: usize, at: &Point3<f32>, radius_sq: f32) -> Option<usize> {
+        let twin = self.twin(i)?;
+        let q = [at.x, at.y, at.z];
+        let near = self.changed.nearest_within(&q, gate_radius(radius_sq.sqrt())).filter(|n| n.dist_sq <= radius_sq);
+        near.is_none().then_some(twin)
     }
 
     /// Points added, moved (counted twice: gone from one place, new at another) or removed.
     pub fn changes(&self) -> usize {
-        self.changes
+        self.changed.len()
     }
 
     /// Points of the newer revision.
@@ -96,31 +82,29 @@ mod tests {
     }
 
     #[test]
-    fn twins_and_distances_to_the_nearest_change() {
+    fn twins_and_the_nearest_change() {
         let older = vec![p(0.0, 0.0, 0.0), p(1.0, 0.0, 0.0), p(2.0, 0.0, 0.0), p(10.0, 0.0, 0.0)];
         // Point 1 moved a little, point 3 removed, one point added at x = 5; order shuffled.
         let newer = vec![p(2.0, 0.0, 0.0), p(0.0, 0.0, 0.0), p(1.0, 0.1, 0.0), p(5.0, 0.0, 0.0)];
         let c = ChangedPoints::between(&older, &newer);
         assert_eq!((0..4).map(|i| c.twin(i)).collect::<Vec<_>>(), vec![Some(2), Some(0), None, None]);
         assert_eq!(c.changes(), 4);
-        // Nearest changes: the old place of point 1 (x = 1) and its new place.
-        assert!((c.distance(0) - 1.0).abs() < 1e-6);
-        assert!((c.distance(1) - 1.0).abs() < 1e-6);
-        assert_eq!((c.distance(2), c.distance(3)), (0.0, 0.0));
-        assert_eq!(c.unchanged_within(0, 0.99), Some(2));
-        assert_eq!(c.unchanged_within(0, 1.0), None, "a change at exactly the radius counts");
-        assert_eq!(c.unchanged_within(2, 0.0), None);
+        // The nearest changes to x = 2 and x = 0: the old place of point 1 (x = 1), 1 m away.
+        assert_eq!(c.unchanged_within(0, &newer[0], 0.99), Some(2));
+        assert_eq!(c.unchanged_within(0, &newer[0], 1.0), None, "a change at exactly the radius counts");
+        assert_eq!(c.unchanged_within(1, &newer[1], 0.98), Some(0));
+        assert_eq!(c.unchanged_within(2, &newer[2], 0.0), None, "a new point has no twin");
     }
 
     #[test]
-    fn nothing_changed_is_infinitely_far_and_a_duplicate_is_matched_once() {
+    fn nothing_changed_is_unchanged_everywhere_and_a_duplicate_is_matched_once() {
         let same = vec![p(0.0, 0.0, 0.0), p(1.0, 2.0, 3.0)];
         let c = ChangedPoints::between(&same, &same);
         assert_eq!(c.changes(), 0);
-        assert!(c.distance(0).is_infinite() && c.distance(1).is_infinite());
+        assert_eq!(c.unchanged_within(1, &same[1], f32::INFINITY), Some(1));
         let doubled = vec![p(0.0, 0.0, 0.0), p(0.0, 0.0, 0.0)];
         let c = ChangedPoints::between(&same[..1], &doubled);
         assert_eq!((c.twin(0), c.twin(1), c.changes()), (Some(0), None, 1));
-        assert_eq!(c.unchanged_within(0, 0.5), None);
+        assert_eq!(c.unchanged_within(0, &doubled[0], 0.25), None);
     }
 }

@@ -99,12 +99,12 @@ pub struct GaussianCloud {
     radii: Option<NeighbourhoodRadii>,
 }
 
-/// Each point's neighbourhood radius (the distance to the farthest of the `neighbours` nearest
-/// points its covariance was estimated from; infinite when the cloud had fewer): a change farther
-/// than that from a point leaves its covariance as it was.
+/// Each point's neighbourhood radius (the squared distance to the farthest of the `neighbours`
+/// nearest points its covariance was estimated from, as the tree gave it; infinite when the cloud
+/// had fewer): a change farther than that from a point leaves its covariance as it was.
 struct NeighbourhoodRadii {
     neighbours: usize,
-    radii: Vec<f32>,
+    radii_sq: Vec<f32>,
 }
 
 /// A [`GaussianCloud`] estimated again for a cloud that changed: [`GaussianCloud::regrown`].
@@ -146,25 +146,25 @@ impl GaussianCloud {
             .enumerate()
             .map(|(i, p)| {
                 let kept = earlier.as_ref().and_then(|(cloud, radii, changed)| {
-                    let twin = changed.twin(i)?;
-                    let twin = changed.unchanged_within(i, radii.radii[twin])?;
-                    Some((cloud.covariances[twin], radii.radii[twin], true))
+                    let radius_sq = radii.radii_sq[changed.twin(i)?];
+                    let twin = changed.unchanged_within(i, p, radius_sq)?;
+                    Some((cloud.covariances[twin], radius_sq, true))
                 });
                 kept.unwrap_or_else(|| {
                     let found = tree.knn(&[p.x, p.y, p.z], neighbours);
-                    let radius = match found.last() {
-                        Some(far) if found.len() == neighbours => far.dist_sq.sqrt(),
+                    let radius_sq = match found.last() {
+                        Some(far) if found.len() == neighbours => far.dist_sq,
                         // Fewer points than neighbours: any point added anywhere joins.
                         _ => f32::INFINITY,
                     };
                     let covariance = neighbourhood_covariance(found.iter().map(|n| &points[n.index]));
-                    (PackedCovariance::pack(&covariance), radius, false)
+                    (PackedCovariance::pack(&covariance), radius_sq, false)
                 })
             })
             .collect();
         let reused = estimated.iter().filter(|e| e.2).count();
-        let (covariances, radii) = estimated.into_iter().map(|(c, r, _)| (c, r)).unzip();
-        let radii = Some(NeighbourhoodRadii { neighbours, radii });
+        let (covariances, radii_sq) = estimated.into_iter().map(|(c, r, _)| (c, r)).unzip();
+        let radii = Some(NeighbourhoodRadii { neighbours, radii_sq });
         Regrown { cloud: GaussianCloud { points: points.to_vec(), covariances, tree, radii }, reused }
     }
 
@@ -245,7 +245,7 @@ impl HeapSize for GaussianCloud {
         vec_bytes(&self.points)
             + vec_bytes(&self.covariances)
             + self.tree.heap_bytes()
-            + self.radii.as_ref().map_or(0, |r| vec_bytes(&r.radii))
+            + self.radii.as_ref().map_or(0, |r| vec_bytes(&r.radii_sq))
     }
 }
 
