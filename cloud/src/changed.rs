@@ -61,16 +61,6 @@ impl ChangedPoints {
     pub fn changes(&self) -> usize {
         self.changed.len()
     }
-
-    /// Points of the newer revision.
-    pub fn len(&self) -> usize {
-        self.twins.len()
-    }
-
-    /// True when the newer revision has no point.
-    pub fn is_empty(&self) -> bool {
-        self.twins.is_empty()
-    }
 }
 
 #[cfg(test)]

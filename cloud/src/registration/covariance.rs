@@ -24,18 +24,23 @@ pub fn estimate_covariances(points: &[Point3<f32>], k: usize) -> Vec<Matrix3<f64
 /// [`estimate_covariances`] with a tree built over exactly `points`.
 pub fn estimate_covariances_with(tree: &KdTree, points: &[Point3<f32>], k: usize) -> Vec<Matrix3<f64>> {
     let xyz: &[[f32; 3]] = bytemuck::cast_slice(points);
-    xyz.par_iter()
-        .map(|q| {
-            let neighbours = tree.knn(q, k);
-            neighbourhood_covariance(neighbours.iter().map(|n| &points[n.index]))
-        })
-        .collect()
+    xyz.par_iter().map(|q| covariance_at(tree, points, q, k).0).collect()
+}
+
+/// The covariance of the `k` points nearest `q` (through `tree`, built over `points`) and the
+/// squared distance to the farthest of them, as the tree gave it (infinite when the tree holds
+/// fewer: any point added anywhere would join them).
+pub(crate) fn covariance_at(tree: &KdTree, points: &[Point3<f32>], q: &[f32; 3], k: usize) -> (Matrix3<f64>, f32) {
+    let neighbours = tree.knn(q, k);
+    let radius_sq = match neighbours.last() {
+        Some(far) if neighbours.len() == k => far.dist_sq,
+        _ => f32::INFINITY,
+    };
+    (neighbourhood_covariance(neighbours.iter().map(|n| &points[n.index])), radius_sq)
 }
 
 /// The plane-regularised covariance of a set of points, or the identity when they are too few.
-pub(crate) fn neighbourhood_covariance<'a>(
-    points: impl ExactSizeIterator<Item = &'a Point3<f32>> + Clone,
-) -> Matrix3<f64> {
+fn neighbourhood_covariance<'a>(points: impl ExactSizeIterator<Item = &'a Point3<f32>> + Clone) -> Matrix3<f64> {
     let n = points.len();
     if n < MIN_NEIGHBOURS {
         return Matrix3::identity();

@@ -3,7 +3,7 @@
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use rayon::prelude::*;
 
-use super::covariance::{PLANE_EPSILON, estimate_covariances_with, neighbourhood_covariance};
+use super::covariance::{PLANE_EPSILON, covariance_at, estimate_covariances_with};
 use crate::changed::ChangedPoints;
 use crate::kdtree::{KdTree, gate_radius};
 use crate::memory::{HeapSize, vec_bytes};
@@ -151,13 +151,7 @@ impl GaussianCloud {
                     Some((cloud.covariances[twin], radius_sq, true))
                 });
                 kept.unwrap_or_else(|| {
-                    let found = tree.knn(&[p.x, p.y, p.z], neighbours);
-                    let radius_sq = match found.last() {
-                        Some(far) if found.len() == neighbours => far.dist_sq,
-                        // Fewer points than neighbours: any point added anywhere joins.
-                        _ => f32::INFINITY,
-                    };
-                    let covariance = neighbourhood_covariance(found.iter().map(|n| &points[n.index]));
+                    let (covariance, radius_sq) = covariance_at(&tree, points, &[p.x, p.y, p.z], neighbours);
                     (PackedCovariance::pack(&covariance), radius_sq, false)
                 })
             })
