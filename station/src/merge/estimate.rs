@@ -292,7 +292,7 @@ fn judge(
         )
     };
     let refined = refine(map_b, map_a, &global.transform, config);
-    let transform = refined.unwrap_or(global.transform);
+    let transform = refined.or(global.transform);
     let transform = finish(map_b, map_a, &transform, config).unwrap_or(transform);
     let scores = score_at(&transform);
     let reject = |reason| PairVerdict::Rejected { reason, best: Some(scores), best_transform: Some(transform) };
@@ -350,7 +350,7 @@ fn judge(
         b,
         transform,
         global_transform: global.transform,
-        refined: refined.is_some(),
+        refined: matches!(refined, Refinement::Narrowed(_)),
         confidence: scores,
         inliers,
         inlier_ratio: global.inlier_ratio,
@@ -402,9 +402,11 @@ fn free_space_acceptance(
 /// finishing pass), scored at the result with the previous global registration's inlier ratio on
 /// the same features. `None` when the refinement does not converge within
 /// [`MergeConfig::max_refine_translation`] / [`MergeConfig::max_refine_rotation_deg`] of the
-/// previous transform, leaves a larger gap between the maps than it, or scores below
-/// [`MergeConfig::min_confidence`]: the caller then runs the global registration again, with all
-/// its checks.
+/// previous transform ([`Refinement::Failed`]) or scores below [`MergeConfig::min_confidence`]:
+/// the caller then runs the global registration again, with all its checks. A refinement that
+/// converges nearby without narrowing the gap ([`Refinement::Held`]) keeps the previous transform:
+/// counting it as lost dropped a door-only link in half the warehouse-small demo runs, and the
+/// search that followed drew the look-alike hall (2026-11-29).
 ///
 /// Tracking cannot swap the link for a repetitive alternative: those lie at least
 /// [`MergeConfig::ambiguity_distance`] away, beyond the refinement's reach, and the previous
@@ -434,7 +436,7 @@ pub fn keep_link(
 /// How a link is followed from its previous transform.
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Follow {
-    /// [`track_pair`]: the refinement must gain, or the link is lost.
+    /// [`track_pair`]: the refinement must converge within reach, or the link is lost.
     Track,
     /// [`keep_link`]: the previous transform stands where the refinement does not gain; the free
     /// space is checked again.
@@ -454,8 +456,10 @@ fn follow(
         (map_a.usable()?, map_b.usable()?)
     };
     let scoring = if previous.coarse { config.coarse.as_ref()? } else { &config.pairwise };
-    let refined = refine(map_b, map_a, &previous.transform, config);
-    let refined = if how == Follow::Track { refined? } else { refined.unwrap_or(previous.transform) };
+    let refined = match refine(map_b, map_a, &previous.transform, config) {
+        Refinement::Failed if how == Follow::Track => return None,
+        refinement => refinement.or(previous.transform),
+    };
     let transform = finish(map_b, map_a, &refined, config).unwrap_or(refined);
     let scores = confidence::confidence(
         &source.surfels.points,
@@ -514,18 +518,6 @@ fn ambiguity(alternative: &RunnerUp, inliers: usize, support: f64) -> f64 {
     by_features.min(by_geometry)
 }
 
-/// Truncated mean squared distance from the source's VGICP input points (at most
-/// [`GAP_SAMPLES`], evenly spread) to their nearest target point: `mean(min(d², v²))` with `v` the
-/// voxel they were downsampled to. The truncation makes points outside the overlap count the same
-/// under both transforms compared, so that the overlap decides.
-fn mean_squared_gap(s: &GaussianCloud, q: &GaussianCloud, t: &Isometry3<f64>, voxel: f32) -> f64 {
-    let cap = f64::from(voxel).powi(2);
-    sampled_mean(s.len(), |i| {
-        let p = t * Point3::from(s.point(i));
-        q.nearest(&p.coords, cap).map_or(cap, |j| (q.mean(j) - p.coords).norm_squared().min(cap))
-    })
-}
-
 /// The mean of `value(i)` over at most [`GAP_SAMPLES`] evenly spread indices below `len`;
 /// infinite when `len` is 0.
 fn sampled_mean(len: usize, value: impl Fn(usize) -> f64 + Sync) -> f64 {
@@ -539,9 +531,12 @@ fn sampled_mean(len: usize, value: impl Fn(usize) -> f64 + Sync) -> f64 {
     if count == 0 { f64::INFINITY } else { sum / count as f64 }
 }
 
-/// [`mean_squared_gap`] measured along the target's normals: `mean(min((n·(p − q))², v²))`, with
-/// `n` the normal of the plane the nearest target point's covariance describes (the point-to-point
-/// distance for a shapeless one).
+/// Truncated mean squared gap across the surfaces from the source's VGICP input points (at most
+/// [`GAP_SAMPLES`], evenly spread) to their nearest target point: `mean(min((n·(p − q))², v²))`,
+/// with `n` the normal of the plane the nearest target point's covariance describes (the
+/// point-to-point distance for a shapeless one) and `v` the voxel the points were downsampled to.
+/// The truncation makes points outside the overlap count the same under both transforms compared,
+/// so that the overlap decides.
 ///
 /// Two maps voxelised in different frames have their points up to half a voxel apart along a
 /// surface, so the point-to-point gap is dominated by that offset and can prefer a transform a
@@ -560,26 +555,51 @@ fn mean_squared_plane_gap(source: &GaussianCloud, target: &GaussianCloud, t: &Is
 /// Source points the refinement arbitration measures: enough for a stable mean, cheap per pair.
 const GAP_SAMPLES: usize = 20_000;
 
-/// The VGICP transform from `init`, if it converged nearby and leaves no larger gap between the
-/// maps than `init`; `None` keeps `init`.
+/// What VGICP made of a transform.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Refinement {
+    /// Converged within [`MergeConfig::max_refine_translation`] /
+    /// [`MergeConfig::max_refine_rotation_deg`] and left a smaller gap between the maps: take it.
+    Narrowed(Isometry3<f64>),
+    /// Converged within reach without narrowing the gap: the start was already as good. A start
+    /// at VGICP's own optimum lands here about half the time (it moves a few millimetres and the
+    /// gap changes by a ten-thousandth), so this says nothing against the start.
+    Held,
+    /// Did not converge, ran beyond reach or found no correspondence (or a map has no fine
+    /// level): nothing near the start holds the maps together.
+    Failed,
+}
+
+impl Refinement {
+    /// The refined transform, or `start` where the refinement did not narrow the gap.
+    pub fn or(self, start: Isometry3<f64>) -> Isometry3<f64> {
+        match self {
+            Refinement::Narrowed(t) => t,
+            Refinement::Held | Refinement::Failed => start,
+        }
+    }
+}
+
+/// VGICP from `init`, judged by the gap it leaves between the maps (see [`Refinement`]).
 ///
-/// VGICP minimises its own cost on voxel means; the truncated mean squared nearest-neighbour
-/// distance between the VGICP input points arbitrates (identical maps: the voxel means pull VGICP a
-/// centimetre off the exact answer, which this catches). Not on the feature surfels: at 0.4 m
-/// their spacing hides decimetres, and the truth can score worse than a transform 12 cm off.
-pub fn refine(
-    source: &PreparedMap,
-    target: &PreparedMap,
-    init: &Isometry3<f64>,
-    config: &MergeConfig,
-) -> Option<Isometry3<f64>> {
-    let (s, t) = (source.fine.as_ref()?, target.fine.as_ref()?);
-    let result = align_gaussians(s, t, init, Method::Vgicp, &config.refine).ok()?;
+/// VGICP minimises its own cost on voxel means; the gap across the surfaces between the VGICP
+/// input points ([`mean_squared_plane_gap`]) arbitrates (identical maps: the voxel means pull VGICP
+/// a centimetre off the exact answer, which this catches). Not the point-to-point gap: two maps
+/// sampled in different frames have their points up to half a voxel apart along every surface, and
+/// where they share little (a door) that offset decided: it kept a placement 7.5 cm from the truth
+/// against VGICP's 0.8 cm (warehouse-small from true poses). Not on the feature surfels either: at
+/// 0.4 m their spacing hides decimetres, and the truth can score worse than a transform 12 cm off.
+pub fn refine(source: &PreparedMap, target: &PreparedMap, init: &Isometry3<f64>, config: &MergeConfig) -> Refinement {
+    let (Some(s), Some(t)) = (source.fine.as_ref(), target.fine.as_ref()) else { return Refinement::Failed };
+    let Ok(result) = align_gaussians(s, t, init, Method::Vgicp, &config.refine) else { return Refinement::Failed };
     let moved = pose_error(&result.transform, init);
     let plausible =
         moved.translation_m <= config.max_refine_translation && moved.rotation_deg <= config.max_refine_rotation_deg;
-    let gap = |x: &Isometry3<f64>| mean_squared_gap(s, t, x, config.refine_voxel);
-    (plausible && result.inliers > 0 && gap(&result.transform) <= gap(init)).then_some(result.transform)
+    if !plausible || result.inliers == 0 {
+        return Refinement::Failed;
+    }
+    let gap = |x: &Isometry3<f64>| mean_squared_plane_gap(s, t, x, config.refine_voxel);
+    if gap(&result.transform) <= gap(init) { Refinement::Narrowed(result.transform) } else { Refinement::Held }
 }
 
 /// The finishing pass from `init` (see [`super::FinishConfig`]), if configured, converged within

@@ -12,7 +12,7 @@
 //!    ([`cloud::registration::align_gaussians`], VGICP). The refinement is kept
 //!    only if it converged to a transform within [`MergeConfig::max_refine_translation`] /
 //!    [`MergeConfig::max_refine_rotation_deg`] of the global one (VGICP that runs off locked onto
-//!    a wrong structure) and does not leave a larger truncated mean squared nearest-neighbour
+//!    a wrong structure) and does not leave a larger truncated mean squared point-to-plane
 //!    distance (capped at [`MergeConfig::refine_voxel`]²) between the VGICP input points than the
 //!    global transform; otherwise the global transform stands. Outdoor, a last VGICP pass on
 //!    finer input ([`MergeConfig::finish`]) takes the centimetre the 1 m voxels leave down to
