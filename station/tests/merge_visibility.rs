@@ -323,7 +323,10 @@ fn a_tracked_door_holds_where_vgicp_does_not_narrow_the_gap() {
     // VGICP started at its own optimum moves a few millimetres and the gap between the maps changes
     // by a ten-thousandth either way; when a gap that did not narrow counted as a lost link, the
     // search that followed drew the look-alike hall and the east robot left the published map in
-    // half the demo runs (2026-11-29). Both keyframe strides, so both samplings of the maps.
+    // half the demo runs (2026-11-29). And the gap must judge the refinement where the maps share
+    // only a door: a point-to-point gap kept the link 7.5 cm from the truth (keyframes every 4th
+    // sweep), a capped gap over all points 5.0 cm (every 6th), against VGICP's centimetre. Both
+    // keyframe strides, so both samplings of the maps.
     let scenario = Scenario::by_name("warehouse-small").unwrap();
     let config = MergeConfig::indoor();
     for stride in [4, 6] {
@@ -357,8 +360,9 @@ fn a_tracked_door_holds_where_vgicp_does_not_narrow_the_gap() {
                 "stride {stride}, {n} keyframes: {:.3} m {:.2} deg, confidence {:.3}",
                 e.translation_m, e.rotation_deg, edge.confidence.score
             );
+            // Maps from true poses: what is left is the refinement's, about a centimetre.
             assert!(
-                e.translation_m < 0.10 && e.rotation_deg < 0.5,
+                e.translation_m < 0.03 && e.rotation_deg < 0.1,
                 "stride {stride}, {n} keyframes: {e:?} off the truth"
             );
         }
