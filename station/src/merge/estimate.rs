@@ -544,11 +544,7 @@ fn sampled_mean(len: usize, value: impl Fn(usize) -> f64 + Sync) -> f64 {
 fn mean_squared_plane_gap(source: &GaussianCloud, target: &GaussianCloud, t: &Isometry3<f64>, voxel: f32) -> f64 {
     let cap = f64::from(voxel).powi(2);
     sampled_mean(source.len(), |i| {
-        let p = t * Point3::from(source.point(i));
-        target.nearest(&p.coords, cap).map_or(cap, |j| {
-            let gap = p.coords - target.mean(j);
-            target.plane_normal(j as usize).map_or(gap.norm_squared(), |n| n.dot(&gap).powi(2)).min(cap)
-        })
+        plane_gap(target, &(t * Point3::from(source.point(i))), voxel).map_or(cap, |g| g.min(cap))
     })
 }
 
