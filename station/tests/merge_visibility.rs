@@ -348,6 +348,7 @@ fn a_tracked_door_holds_where_vgicp_does_not_narrow_the_gap() {
         }
         let mut edge = found.unwrap_or_else(|| panic!("stride {stride}: the door not found"));
         let east_map = prepare(1, east);
+        let true_link = truth(&frames(&fleet), 0, 1);
         let (mut held, steps) = (0, 16);
         for k in 1..=steps {
             let n = start + (west - start) * k / steps;
@@ -355,7 +356,7 @@ fn a_tracked_door_holds_where_vgicp_does_not_narrow_the_gap() {
             held += usize::from(refine(&east_map, &west_map, &edge.transform, &config) == Refinement::Held);
             edge = track_pair((0, &west_map), (1, &east_map), &edge, &config)
                 .unwrap_or_else(|| panic!("stride {stride}: the link lost at {n} of {west} keyframes"));
-            let e = pose_error(&edge.transform, &truth(&frames(&fleet), 0, 1));
+            let e = pose_error(&edge.transform, &true_link);
             println!(
                 "stride {stride}, {n} keyframes: {:.3} m {:.2} deg, confidence {:.3}",
                 e.translation_m, e.rotation_deg, edge.confidence.score

@@ -611,7 +611,7 @@ impl Refinement {
 /// VGICP from `init`, judged by the gap it leaves between the maps (see [`Refinement`]).
 ///
 /// VGICP minimises its own cost on voxel means; the gap across the surfaces between the VGICP
-/// input points both transforms overlap ([`common_plane_gaps`]) arbitrates (identical maps: the
+/// input points both transforms overlap (`common_plane_gaps`) arbitrates (identical maps: the
 /// voxel means pull VGICP a centimetre off the exact answer, which this catches). Not the
 /// point-to-point gap: two maps sampled in different frames have their points up to half a voxel
 /// apart along every surface, and where they share little (a door) that offset decided: it kept a

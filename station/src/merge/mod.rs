@@ -12,9 +12,10 @@
 //!    ([`cloud::registration::align_gaussians`], VGICP). The refinement is kept
 //!    only if it converged to a transform within [`MergeConfig::max_refine_translation`] /
 //!    [`MergeConfig::max_refine_rotation_deg`] of the global one (VGICP that runs off locked onto
-//!    a wrong structure) and does not leave a larger truncated mean squared point-to-plane
-//!    distance (capped at [`MergeConfig::refine_voxel`]²) between the VGICP input points than the
-//!    global transform; otherwise the global transform stands. Outdoor, a last VGICP pass on
+//!    a wrong structure) and does not leave a larger mean squared point-to-plane distance than the
+//!    global transform, over the VGICP input points within [`MergeConfig::refine_voxel`] of the
+//!    other map under both; otherwise the global transform stands (a tracked link keeps its
+//!    previous transform the same way, [`estimate::Refinement`]). Outdoor, a last VGICP pass on
 //!    finer input ([`MergeConfig::finish`]) takes the centimetre the 1 m voxels leave down to
 //!    millimetres; it is kept if it moved less than [`FinishConfig::max_translation`] /
 //!    [`FinishConfig::max_rotation_deg`] and leaves no larger truncated mean squared
