@@ -16,6 +16,7 @@ pub mod memory;
 pub mod moments;
 pub mod ordered_tree;
 pub mod point_cloud;
+pub mod pose_graph;
 pub mod preset;
 pub mod registration;
 pub mod scan_context;

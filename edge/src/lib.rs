@@ -5,7 +5,6 @@ pub mod live_view;
 pub mod loops;
 pub mod node;
 pub mod odometry;
-pub mod pose_graph;
 pub mod recording;
 pub mod robustness;
 pub mod source;

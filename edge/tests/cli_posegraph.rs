@@ -2,7 +2,7 @@
 
 use std::process::{Command, Output};
 
-use edge::pose_graph::{PoseGraphConfig, g2o};
+use cloud::pose_graph::{PoseGraphConfig, g2o};
 
 fn emr_edge(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_emr-edge")).args(args).output().expect("emr-edge runs")

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, anyhow};
-use edge::pose_graph::{Kernel, PoseGraph, PoseGraphConfig, Report, g2o};
+use cloud::pose_graph::{Kernel, PoseGraph, PoseGraphConfig, Report, g2o};
 
 /// Arguments of `emr-edge posegraph`.
 #[derive(clap::Args, Debug)]

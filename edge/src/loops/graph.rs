@@ -1,12 +1,12 @@
 //! The robot's keyframe pose graph: one pose per keyframe, an odometry edge between consecutive
-//! keyframes, an edge per accepted loop; optimised ([`crate::pose_graph`]) whenever the accepted
+//! keyframes, an edge per accepted loop; optimised ([`cloud::pose_graph`]) whenever the accepted
 //! loops change, and followed by odometry in between.
 
 use cloud::se3;
 use nalgebra::{Isometry3, Matrix6};
 use serde::{Deserialize, Serialize};
 
-use crate::pose_graph::{Edge, EdgeKind, PoseGraph, PoseGraphConfig, PoseGraphError, Report};
+use cloud::pose_graph::{Edge, EdgeKind, OdometryNoise, PoseGraph, PoseGraphConfig, PoseGraphError, Report};
 
 /// How the graph weighs odometry and is optimised.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -41,12 +41,13 @@ impl Default for GraphConfig {
 impl GraphConfig {
     /// The information of an odometry edge over `step` (diagonal, tangent `[ρ; φ]`).
     fn odometry_information(&self, step: &Isometry3<f64>) -> Matrix6<f64> {
-        let length = step.translation.vector.norm();
-        let sigma_t = (self.odometry_drift * length).max(self.odometry_min_sigma_m);
-        let sigma_r = (self.odometry_rotation_deg_per_m * length).max(self.odometry_min_sigma_deg).to_radians();
-        let t = 1.0 / (sigma_t * sigma_t);
-        let r = 1.0 / (sigma_r * sigma_r);
-        Matrix6::from_diagonal(&nalgebra::Vector6::new(t, t, t, r, r, r))
+        let noise = OdometryNoise {
+            drift: self.odometry_drift,
+            rotation_deg_per_m: self.odometry_rotation_deg_per_m,
+            min_sigma_m: self.odometry_min_sigma_m,
+            min_sigma_deg: self.odometry_min_sigma_deg,
+        };
+        noise.information(step)
     }
 }
 

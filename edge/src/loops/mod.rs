@@ -33,7 +33,7 @@ use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::odometry::Keyframe;
-use crate::pose_graph::{Edge, EdgeKind, PoseGraph, PoseGraphError, Report};
+use cloud::pose_graph::{Edge, EdgeKind, PoseGraph, PoseGraphError, Report};
 use cloud::scan_context::{Comparable, RingKeyIndex, ScanContext, ScanContextConfig};
 use consistency::{ConsistencyConfig, LoopView};
 use graph::{GraphConfig, KeyframeGraph};

@@ -393,7 +393,7 @@ impl OdometryPipeline {
             write(&self.out.join("poses_odometry_kitti.txt"), &pass.estimate.to_kitti())?;
             write(&self.out.join("loops.json"), &serde_json::to_string_pretty(&track.file(&pass.scans))?)?;
             let graph = track.closer().graph().map_err(LoopError::from)?;
-            write(&self.out.join("graph.g2o"), &crate::pose_graph::g2o::write(&graph))?;
+            write(&self.out.join("graph.g2o"), &cloud::pose_graph::g2o::write(&graph))?;
         }
         let accuracy = evaluate(&pass.truth, &estimate.poses)?;
         let odometry_accuracy = match &track {

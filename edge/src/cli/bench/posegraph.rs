@@ -5,8 +5,8 @@ use std::fmt;
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use edge::pose_graph::synthetic::{self, SyntheticConfig};
-use edge::pose_graph::{PoseGraph, PoseGraphConfig, Report, g2o};
+use cloud::pose_graph::synthetic::{self, SyntheticConfig};
+use cloud::pose_graph::{PoseGraph, PoseGraphConfig, Report, g2o};
 use nalgebra::Isometry3;
 use sim::noise::SplitMix;
 

@@ -243,7 +243,7 @@ pub fn cost(poses: &[Isometry3<f64>], edges: &[Edge], config: &PoseGraphConfig) 
             })
             .sum()
     };
-    cloud::gauss_newton::reduce_in_order(edges.par_chunks(CHUNK), chunk_cost, 0.0, |a, b| a + b)
+    crate::gauss_newton::reduce_in_order(edges.par_chunks(CHUNK), chunk_cost, 0.0, |a, b| a + b)
 }
 
 /// The sparse Cholesky factorisation of `H` on a fixed pattern: the symbolic analysis once, then
@@ -321,7 +321,7 @@ mod tests {
     }
 
     fn random_pose(rng: &mut Rng) -> Isometry3<f64> {
-        cloud::se3::exp(&Vector6::from_fn(|_, _| rng.uniform(-1.0, 1.0)))
+        crate::se3::exp(&Vector6::from_fn(|_, _| rng.uniform(-1.0, 1.0)))
     }
 
     /// `H` and `b` summed densely over all poses, then the fixed pose's rows and columns dropped.

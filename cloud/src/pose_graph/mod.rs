@@ -8,7 +8,7 @@
 //! F(T) = ½ Σₑ ρₑ(eₑᵀ Ωₑ eₑ),   eₑ = log(Zₑ⁻¹ Tᵢ⁻¹ Tⱼ)                              (1)
 //! ```
 //!
-//! with the workspace's one Lie convention ([`cloud::se3`]): tangent `[ρ; φ]` translation first,
+//! with the workspace's one Lie convention ([`crate::se3`]): tangent `[ρ; φ]` translation first,
 //! poses perturbed on the right. Ω is in that order too, which is also g2o's (translation then
 //! rotation), so a g2o file's information matrix is used as it stands. The error and its
 //! Jacobians are in [`residual`], robust kernels in [`kernel`], the sparse normal equations in
@@ -55,6 +55,33 @@ pub struct Edge {
     pub kind: EdgeKind,
 }
 
+/// How far odometry may be off over a step: a deviation growing with the distance travelled, with
+/// a floor for steps that turn without travel. What both the robots' keyframe graphs and the
+/// station's joint graph weigh their odometry edges by.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OdometryNoise {
+    /// Translation error per metre travelled (m/m).
+    pub drift: f64,
+    /// Rotation error per metre travelled (deg/m).
+    pub rotation_deg_per_m: f64,
+    /// Least translation deviation of a step (m).
+    pub min_sigma_m: f64,
+    /// Least rotation deviation of a step (deg).
+    pub min_sigma_deg: f64,
+}
+
+impl OdometryNoise {
+    /// The information of an odometry edge over `step` (diagonal, tangent `[ρ; φ]`).
+    pub fn information(&self, step: &Isometry3<f64>) -> Matrix6<f64> {
+        let length = step.translation.vector.norm();
+        let sigma_t = (self.drift * length).max(self.min_sigma_m);
+        let sigma_r = (self.rotation_deg_per_m * length).max(self.min_sigma_deg).to_radians();
+        let t = 1.0 / (sigma_t * sigma_t);
+        let r = 1.0 / (sigma_r * sigma_r);
+        Matrix6::from_diagonal(&nalgebra::Vector6::new(t, t, t, r, r, r))
+    }
+}
+
 /// How a pose graph is optimised. The stopping rules and λ schedule are GTSAM's
 /// `LevenbergMarquardtParams` defaults.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -79,7 +106,7 @@ pub struct PoseGraphConfig {
     /// Kernel of loop edges. Default Cauchy with k = 3 (standard deviations of the loop's own
     /// noise): a loop the rest of the graph agrees with (r² ≈ 6, the mean of χ² with 6 degrees of
     /// freedom) keeps 60 % of its weight k² / (k² + r²), one it contradicts by 30 σ keeps 1 %. On
-    /// the synthetic ring with two false loops (edge/tests/pose_graph.rs), k = 3 and 5 leave the
+    /// the synthetic ring with two false loops (cloud/tests/pose_graph.rs), k = 3 and 5 leave the
     /// trajectory as without them; k = 1 (SC-A-LOAM's, whose loop noise is loose) weighs true loops
     /// 0.14 at the optimum, and took 3-4x the iterations to a worse trajectory.
     pub loop_kernel: Kernel,

@@ -7,7 +7,7 @@
 
 use std::f64::consts::TAU;
 
-use cloud::se3;
+use crate::se3;
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
 use super::{Edge, EdgeKind, PoseGraph};

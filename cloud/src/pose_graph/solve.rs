@@ -20,8 +20,8 @@
 //! No crate is used for the loop: no maintained Rust crate does SE(3) pose-graph LM over faer's
 //! sparse Cholesky with a symbolic factorisation reused across iterations, and the loop is short.
 
-use cloud::se3;
-use cloud::stopwatch::Stopwatch;
+use crate::se3;
+use crate::stopwatch::Stopwatch;
 use nalgebra::{Isometry3, Vector6};
 
 use super::system::{self, Factoriser, NormalEquations, Pattern};

@@ -1,8 +1,8 @@
 //! The pose-graph optimiser against ground truth: synthetic graphs with known poses, a false loop,
 //! and the standard g2o benchmarks against GTSAM's published figures.
 
-use edge::pose_graph::synthetic::{self, Synthetic, SyntheticConfig};
-use edge::pose_graph::{Edge, EdgeKind, PoseGraph, PoseGraphConfig, g2o};
+use cloud::pose_graph::synthetic::{self, Synthetic, SyntheticConfig};
+use cloud::pose_graph::{Edge, EdgeKind, PoseGraph, PoseGraphConfig, g2o};
 use nalgebra::Isometry3;
 use testkit::Rng;
 

@@ -1,5 +1,5 @@
 //! One edge's error and its analytic Jacobians (GTSAM's `BetweenFactor<Pose3>`, in the
-//! workspace's tangent order `[ρ; φ]` and right perturbations, [`cloud::se3`]).
+//! workspace's tangent order `[ρ; φ]` and right perturbations, [`crate::se3`]).
 //!
 //! An edge measures `Z`, the pose of `j` in the frame of `i`. Its error is the tangent vector that
 //! takes the measurement to the prediction `Tᵢ⁻¹ Tⱼ`:
@@ -17,10 +17,10 @@
 //! ∂e/∂δᵢ = −Jr⁻¹(e) · Ad(Tⱼ⁻¹ Tᵢ)                                               (4)
 //! ```
 //!
-//! `Jr⁻¹` is exact ([`cloud::se3::right_jacobian_inverse`]), as GTSAM's `Pose3::Logmap`
+//! `Jr⁻¹` is exact ([`crate::se3::right_jacobian_inverse`]), as GTSAM's `Pose3::Logmap`
 //! derivative is, so both optimisers take the same Gauss-Newton steps.
 
-use cloud::se3;
+use crate::se3;
 use nalgebra::{Isometry3, Matrix6, Vector6};
 
 /// An edge's error and Jacobians at one linearisation point.
