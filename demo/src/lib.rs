@@ -28,9 +28,12 @@ use edge::source::SourceSpec;
 use nalgebra::Isometry3;
 use proto::{Fleet, GlobalMap, MergeStatus};
 use serde_json::{Value, json};
+use station::joint::{self, JointConfig};
 use station::merge::MergeConfig;
 use station::merge::files::{self, FilesError};
 use station::service::client::{global_map_cloud, placements_json};
+use station::service::joint_input::joint_input;
+use station::service::merge_job::RobotSnapshot;
 use station::service::{Station, StationConfig, StationError};
 use tokio::sync::{mpsc, oneshot};
 use tracing::info;
@@ -132,6 +135,10 @@ pub struct RobotResult {
     /// ATE of the trajectory placed in the global frame against the truth in that frame (merge
     /// and odometry errors together, no alignment), when the robot was merged.
     pub global_ate: Option<Ate>,
+    /// The same with the station's joint pose graph ([`station::joint`]) in place of the rigid
+    /// placement: each scan follows its keyframe's jointly optimised pose. `None` when the robot
+    /// was not joined (not merged, or no inter-robot edge links it to the reference).
+    pub joint_ate: Option<Ate>,
     /// Placement error against the truth: metres and degrees.
     pub placement_error: Option<(f64, f64)>,
     /// The placement error a perfect rigid merge would leave, metres and degrees: this robot's and
@@ -201,7 +208,8 @@ pub async fn run(config: DemoConfig, interrupt: impl Future<Output = ()>) -> Res
         (true, Some(map)) => map,
         _ => return Err(DemoError::Interrupted),
     };
-    let robots = judge(&summaries, &global_map);
+    let joint = joint_poses(&station.fleet, &global_map);
+    let robots = judge(&summaries, &global_map, &joint);
     let timing = Timing { wall_s: started.elapsed().as_secs_f64(), merge_ms: station.merge_ms };
     let written = write_results(&config, &summaries, &global_map, &robots, &timing)?;
     Ok(DemoReport { robots, global_map, wall_s: timing.wall_s, merge_ms: timing.merge_ms, written })
@@ -307,7 +315,7 @@ async fn wait_station(station: &Station, sent: &BTreeMap<u32, SourceDone>) -> bo
 }
 
 /// Scores each robot against the simulator's truth.
-fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotResult> {
+fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap, joint: &JointPoses) -> Vec<RobotResult> {
     let reference_start = summaries.get(&map.reference_robot).and_then(|s| s.ground_truth.first().copied().flatten());
     let reference_fit = summaries.get(&map.reference_robot).and_then(map_fit);
     summaries
@@ -329,6 +337,10 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotRe
             // The station places the keyframes at their optimised poses: the trajectory it places
             // is the corrected one.
             let global_ate = frame.map(|f| ate(&moved(&truth, &f.truth), &moved(&corrected, &f.placed), false));
+            let joint_ate = frame.zip(joint.get(&robot)).and_then(|(f, keyframes)| {
+                let placed = joint_trajectory(s, &corrected, keyframes)?;
+                Some(ate(&moved(&truth, &f.truth), &placed, false))
+            });
             let placement_error = frame.map(|f| metres_and_degrees(&(f.placed.inverse() * f.truth)));
             let placement_floor = frame.zip(reference_fit).zip(map_fit(s)).map(|((f, reference), own)| {
                 metres_and_degrees(&(rigid_floor(&f.truth, &reference, &own).inverse() * f.truth))
@@ -341,6 +353,7 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotRe
                 odometry_ate,
                 corrected_ate,
                 global_ate,
+                joint_ate,
                 placement_error,
                 placement_floor,
                 frame,
@@ -349,6 +362,51 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap) -> Vec<RobotRe
                 odometry_ms: s.odometry_ms.clone(),
             }
         })
+        .collect()
+}
+
+/// Per joined robot, per keyframe (by sequence number): the pose the station held it at (its
+/// robot's frame) and its jointly optimised pose (global frame).
+type JointPoses = BTreeMap<u32, BTreeMap<u64, (Isometry3<f64>, Isometry3<f64>)>>;
+
+/// Runs the station's joint pose graph on what it held at the end (empty when it cannot run).
+fn joint_poses(fleet: &[RobotSnapshot], map: &GlobalMap) -> JointPoses {
+    let started = Instant::now();
+    let Some(input) = joint_input(fleet, map) else { return JointPoses::new() };
+    let solution = match joint::solve(&input.paths, input.reference, &JointConfig::default()) {
+        Ok(s) => s,
+        Err(e) => {
+            tracing::warn!("joint pose graph: {e}");
+            return JointPoses::new();
+        }
+    };
+    info!(
+        "joint pose graph: {} inter-robot edges registered, {} consistent, {} of {} robots joined, {:.1} s",
+        solution.registered,
+        solution.constraints.len(),
+        solution.joined.iter().filter(|&&j| j).count(),
+        input.robots.len(),
+        started.elapsed().as_secs_f64()
+    );
+    let mut out = JointPoses::new();
+    for (r, &robot) in input.robots.iter().enumerate().filter(|(r, _)| solution.joined[*r]) {
+        let held = input.seqs[r].iter().zip(&input.paths[r].poses).zip(&solution.poses[r]);
+        out.insert(robot, held.map(|((&seq, held), joint)| (seq, (*held, *joint))).collect());
+    }
+    out
+}
+
+/// Each scan at its keyframe's joint pose and the motion since that keyframe (global frame);
+/// `None` when a scan's keyframe is not among those the station held.
+fn joint_trajectory(
+    s: &NodeSummary,
+    corrected: &[Isometry3<f64>],
+    keyframes: &BTreeMap<u64, (Isometry3<f64>, Isometry3<f64>)>,
+) -> Option<Vec<Isometry3<f64>>> {
+    corrected
+        .iter()
+        .zip(&s.keyframe_of_scan)
+        .map(|(pose, &k)| keyframes.get(&(k as u64)).map(|(held, joint)| joint * (held.inverse() * pose)))
         .collect()
 }
 
@@ -446,6 +504,7 @@ fn summary_json(config: &DemoConfig, map: &GlobalMap, robots: &[RobotResult], ti
                 "odometry_ate": {"aligned": ate_json(&r.odometry_ate.0), "unaligned": ate_json(&r.odometry_ate.1)},
                 "loop_closed_ate": {"aligned": ate_json(&r.corrected_ate.0), "unaligned": ate_json(&r.corrected_ate.1)},
                 "global_ate_unaligned": r.global_ate.as_ref().map(ate_json),
+                "joint_ate_unaligned": r.joint_ate.as_ref().map(ate_json),
             })
         })
         .collect();

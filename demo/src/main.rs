@@ -196,14 +196,15 @@ fn print_demo(report: &DemoReport) {
         report.merge_ms.last().copied().unwrap_or(0.0)
     );
     println!(
-        "robot  scans  keyframes  loops  status    confidence  placement error  rigid floor      odometry ATE aligned/unaligned  with loops  global ATE"
+        "robot  scans  keyframes  loops  status    confidence  placement error  rigid floor      odometry ATE aligned/unaligned  with loops  global ATE  joint ATE"
     );
     for r in &report.robots {
         let placement = r.placement_error.map_or("-".into(), |(m, d)| format!("{:.1} cm {:.2} deg", m * 100.0, d));
         let floor = r.placement_floor.map_or("-".into(), |(m, d)| format!("{:.1} cm {:.2} deg", m * 100.0, d));
         let global = r.global_ate.map_or("-".into(), |a| format!("{:.1} cm", a.rmse * 100.0));
+        let joint = r.joint_ate.map_or("-".into(), |a| format!("{:.1} cm", a.rmse * 100.0));
         println!(
-            "{:>5}  {:>5}  {:>9}  {:>5}  {:<8}  {:>10.3}  {:>15}  {floor:>15}   {:>13.1} / {:.1} cm   {:>4.1} / {:.1} cm  {global:>10}",
+            "{:>5}  {:>5}  {:>9}  {:>5}  {:<8}  {:>10.3}  {:>15}  {floor:>15}   {:>13.1} / {:.1} cm   {:>4.1} / {:.1} cm  {global:>10}  {joint:>9}",
             r.robot,
             r.frames,
             r.keyframes,

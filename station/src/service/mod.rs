@@ -20,6 +20,7 @@ pub mod client;
 pub mod estimator;
 pub mod fleet_state;
 pub mod ingest;
+pub mod joint_input;
 pub mod live_view;
 pub mod merge_job;
 pub mod merge_queue;
@@ -164,6 +165,8 @@ pub struct StationSummary {
     pub global_map: Option<GlobalMap>,
     /// Keyframes held per robot.
     pub keyframes: BTreeMap<u32, usize>,
+    /// Every robot's keyframes and newest poses as the station held them last (payloads shared).
+    pub fleet: Vec<merge_job::RobotSnapshot>,
     /// Payloads rejected.
     pub malformed: u64,
     /// Conflicting keyframes.

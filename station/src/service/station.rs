@@ -649,6 +649,7 @@ impl Core {
         StationSummary {
             global_map: self.latest.map(|p| p.map),
             keyframes: self.state.keyframe_counts(),
+            fleet: super::merge_job::snapshot(&self.state),
             malformed: self.counters.malformed,
             conflicts: self.state.total_conflicts(),
             backfilled: self.counters.backfilled,
