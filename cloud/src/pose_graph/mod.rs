@@ -71,15 +71,25 @@ pub struct OdometryNoise {
 }
 
 impl OdometryNoise {
+    /// Deviations of the translation (m) and rotation (deg) of an odometry step over `step`.
+    pub fn sigmas(&self, step: &Isometry3<f64>) -> (f64, f64) {
+        let length = step.translation.vector.norm();
+        ((self.drift * length).max(self.min_sigma_m), (self.rotation_deg_per_m * length).max(self.min_sigma_deg))
+    }
+
     /// The information of an odometry edge over `step` (diagonal, tangent `[ρ; φ]`).
     pub fn information(&self, step: &Isometry3<f64>) -> Matrix6<f64> {
-        let length = step.translation.vector.norm();
-        let sigma_t = (self.drift * length).max(self.min_sigma_m);
-        let sigma_r = (self.rotation_deg_per_m * length).max(self.min_sigma_deg).to_radians();
-        let t = 1.0 / (sigma_t * sigma_t);
-        let r = 1.0 / (sigma_r * sigma_r);
-        Matrix6::from_diagonal(&nalgebra::Vector6::new(t, t, t, r, r, r))
+        let (sigma_m, sigma_deg) = self.sigmas(step);
+        diagonal_information(sigma_m, sigma_deg)
     }
+}
+
+/// The information of an edge whose translation and rotation errors are independent, each axis
+/// with deviation `sigma_m` (metres) and `sigma_deg` (degrees): diagonal, tangent `[ρ; φ]`.
+pub fn diagonal_information(sigma_m: f64, sigma_deg: f64) -> Matrix6<f64> {
+    let t = 1.0 / (sigma_m * sigma_m);
+    let r = 1.0 / sigma_deg.to_radians().powi(2);
+    Matrix6::from_diagonal(&nalgebra::Vector6::new(t, t, t, r, r, r))
 }
 
 /// How a pose graph is optimised. The stopping rules and λ schedule are GTSAM's

@@ -53,12 +53,7 @@ fn agree(paths: &[RobotPath], c1: &Constraint, c2: &Constraint, config: &JointCo
 
 /// Deviation of the difference (3): two edges' and two odometry stretches', independent.
 fn deviation(odometry_a: &Isometry3<f64>, odometry_b: &Isometry3<f64>, config: &JointConfig) -> (f64, f64) {
-    let noise = &config.odometry;
-    let stretch = |o: &Isometry3<f64>| {
-        let length = o.translation.vector.norm();
-        ((noise.drift * length).max(noise.min_sigma_m), (noise.rotation_deg_per_m * length).max(noise.min_sigma_deg))
-    };
-    let ((ta, ra), (tb, rb)) = (stretch(odometry_a), stretch(odometry_b));
+    let ((ta, ra), (tb, rb)) = (config.odometry.sigmas(odometry_a), config.odometry.sigmas(odometry_b));
     let sigma_m = (2.0 * config.sigma_m.powi(2) + ta * ta + tb * tb).sqrt();
     let sigma_deg = (2.0 * config.sigma_deg.powi(2) + ra * ra + rb * rb).sqrt();
     (sigma_m, sigma_deg)

@@ -30,9 +30,11 @@ pub mod constraints;
 use std::sync::Arc;
 
 use cloud::PointCloud;
-use cloud::pose_graph::{Edge, EdgeKind, OdometryNoise, PoseGraph, PoseGraphConfig, PoseGraphError, Report};
+use cloud::pose_graph::{
+    Edge, EdgeKind, OdometryNoise, PoseGraph, PoseGraphConfig, PoseGraphError, Report, diagonal_information,
+};
 use cloud::registration::{Method, RegistrationConfig};
-use nalgebra::{Isometry3, Matrix6, Vector6};
+use nalgebra::{Isometry3, Matrix6};
 
 pub use constraints::{Constraint, KeyframeRef};
 
@@ -147,13 +149,6 @@ impl JointConfig {
         information
     }
 
-    /// The information of an inter-robot edge (diagonal, tangent `[ρ; φ]`).
-    fn constraint_information(&self) -> Matrix6<f64> {
-        let t = 1.0 / (self.sigma_m * self.sigma_m);
-        let r = 1.0 / self.sigma_deg.to_radians().powi(2);
-        Matrix6::from_diagonal(&Vector6::new(t, t, t, r, r, r))
-    }
-
     fn validate(&self) -> Result<(), JointError> {
         let positive = |v: f64| v.is_finite() && v > 0.0;
         let ok = positive(self.reach)
@@ -225,7 +220,7 @@ pub fn solve(paths: &[RobotPath], reference: usize, config: &JointConfig) -> Res
     check(paths, reference, config)?;
     let registered = constraints::find(paths, config);
     let kept = consistency::consistent(paths, &registered, config);
-    let mut solution = optimise(paths, reference, kept, config)?;
+    let mut solution = optimise_checked(paths, reference, kept, config)?;
     solution.registered = registered.len();
     Ok(solution)
 }
@@ -238,7 +233,17 @@ pub fn optimise(
     config: &JointConfig,
 ) -> Result<JointSolution, JointError> {
     check(paths, reference, config)?;
-    let joined = joined(paths.len(), reference, &constraints, paths);
+    optimise_checked(paths, reference, constraints, config)
+}
+
+/// [`optimise`] on input [`check`] passed.
+fn optimise_checked(
+    paths: &[RobotPath],
+    reference: usize,
+    constraints: Vec<Constraint>,
+    config: &JointConfig,
+) -> Result<JointSolution, JointError> {
+    let joined = joined(reference, &constraints, paths);
     let mut poses: Vec<Vec<Isometry3<f64>>> =
         paths.iter().map(|p| (0..p.poses.len()).map(|k| p.placed(k)).collect()).collect();
     let report = if joined.iter().filter(|&&j| j).count() > 1 {
@@ -274,8 +279,8 @@ fn check(paths: &[RobotPath], reference: usize, config: &JointConfig) -> Result<
 
 /// Which robots inter-robot edges link to the reference, directly or through others (a robot
 /// without keyframes takes no part).
-fn joined(robots: usize, reference: usize, constraints: &[Constraint], paths: &[RobotPath]) -> Vec<bool> {
-    let mut joined = vec![false; robots];
+fn joined(reference: usize, constraints: &[Constraint], paths: &[RobotPath]) -> Vec<bool> {
+    let mut joined = vec![false; paths.len()];
     joined[reference] = !paths[reference].poses.is_empty();
     let mut grew = true;
     while grew {
@@ -317,7 +322,7 @@ fn build(
         }
     }
     let node = |k: &KeyframeRef| first[k.robot].map(|s| s + k.keyframe);
-    let information = config.constraint_information();
+    let information = diagonal_information(config.sigma_m, config.sigma_deg);
     for c in constraints {
         if let (Some(from), Some(to)) = (node(&c.target), node(&c.source)) {
             graph.add_edge(Edge { from, to, measurement: c.measurement, information, kind: EdgeKind::Loop })?;
