@@ -17,6 +17,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
+use crate::fleet_joint::{self, JointLoad};
 use cloud::memory::{peak_rss_mb, rss_mb};
 use cloud::scan_context::{ScanContext, ScanContextConfig};
 use cloud::se3::{PoseError, pose_error};
@@ -30,6 +31,7 @@ use proto::{Fleet, GlobalMap, keyexpr};
 use rayon::prelude::*;
 use serde::Serialize;
 use sim::{Scenario, SimConfig, Simulator};
+use station::joint::JointConfig;
 use station::service::{RobotMemory, Station, StationConfig, StationError, StationProgress};
 use tokio::sync::{oneshot, watch};
 use tracing::{debug, info, warn};
@@ -55,6 +57,9 @@ pub struct LoadConfig {
     pub voxel: f32,
     /// The station's settings.
     pub station: StationConfig,
+    /// Run the station's joint pose graph on the final maps ([`crate::fleet_joint`]), when set
+    /// (default none: it runs after the station stops and adds nothing to the other figures).
+    pub joint: Option<JointConfig>,
 }
 
 impl LoadConfig {
@@ -68,6 +73,7 @@ impl LoadConfig {
             seconds: 20.0,
             voxel: 0.2,
             station: StationConfig { debounce: Duration::from_secs(1), ..StationConfig::new(fleet) },
+            joint: None,
         }
     }
 
@@ -146,6 +152,9 @@ pub struct LoadReport {
     pub rss_mb: Rss,
     /// What the station says it holds per robot once caught up, MB.
     pub station_mb: StationMemory,
+    /// The joint pose graph on the final maps, when asked for and the final map merged its
+    /// reference.
+    pub joint: Option<JointLoad>,
 }
 
 /// The station's own count of what it holds ([`station::service::RobotMemory`]), MB.
@@ -259,6 +268,9 @@ pub enum LoadError {
     /// The station.
     #[error(transparent)]
     Station(#[from] StationError),
+    /// The joint pose graph on the final maps.
+    #[error("joint pose graph: {0}")]
+    Joint(String),
 }
 
 /// Runs the benchmark.
@@ -304,6 +316,17 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
     let summary = rig.station.stop().await?;
     let merged_robots = summary.global_map.as_ref().map_or(0, merged_count);
     let placement_error = summary.global_map.as_ref().and_then(|m| PlacementError::of(m, &frames));
+    let joint = match (&config.joint, &summary.global_map) {
+        (Some(joint), Some(map)) => {
+            info!("running the joint pose graph on the final maps");
+            let (fleet, map, frames, joint) = (summary.fleet.clone(), map.clone(), Arc::clone(&frames), joint.clone());
+            tokio::task::spawn_blocking(move || fleet_joint::measure(&fleet, &map, &frames, &joint))
+                .await
+                .map_err(|e| LoadError::Joint(e.to_string()))?
+                .map_err(|e| LoadError::Joint(e.to_string()))?
+        }
+        _ => None,
+    };
     Ok(LoadReport {
         robots: config.robots,
         sent,
@@ -325,6 +348,7 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
         worst_published_error: observed.worst_error,
         rss_mb,
         station_mb,
+        joint,
     })
 }
 
@@ -644,7 +668,37 @@ impl fmt::Display for LoadReport {
             self.station_mb.maps,
             self.station_mb.robot_mean,
             self.station_mb.robot_max
-        )
+        )?;
+        if let Some(j) = &self.joint {
+            let cm = |v: Option<f64>| v.map_or("-".into(), |v| format!("{:.1} cm", v * 100.0));
+            write!(
+                f,
+                "\njoint pose graph: {} keyframes of {} robots, {} inter-robot edges registered, {} consistent, \
+                 {} robots joined, {:.1} s (edges {:.1} s, consistency {:.0} ms, optimising {:.0} ms); keyframes against the truth: rigid {}, joint {}; \
+                 edges against the truth: {}",
+                j.keyframes,
+                j.robots,
+                j.registered,
+                j.kept,
+                j.joined,
+                j.ms / 1e3,
+                j.edges_ms / 1e3,
+                j.consistency_ms,
+                j.optimise_ms,
+                cm(j.rigid_rmse_m),
+                cm(j.joint_rmse_m),
+                j.edge_error_m.zip(j.edge_error_deg).map_or("none".into(), |(m, d)| format!(
+                    "median {:.1} cm / {:.2} deg, p95 {:.1} cm / {:.2} deg, max {:.1} cm / {:.2} deg",
+                    m.p50 * 100.0,
+                    d.p50,
+                    m.p95 * 100.0,
+                    d.p95,
+                    m.max * 100.0,
+                    d.max
+                ))
+            )?;
+        }
+        Ok(())
     }
 }
 

@@ -13,6 +13,7 @@
 //! This crate is the one place where robot code and station code meet.
 
 mod figures;
+pub mod fleet_joint;
 pub mod fleet_load;
 pub mod report;
 

@@ -11,6 +11,7 @@ use demo::fleet_load::{self, LoadConfig};
 use demo::report::{self, ReportConfig};
 use demo::{DemoConfig, DemoReport};
 use edge::node::Rate;
+use station::joint::JointConfig;
 
 /// The whole EMR-FLOAM system on this machine, no set-up.
 ///
@@ -106,9 +107,15 @@ enum Bench {
         /// Print the figures as one JSON object on stdout's last line instead of text: robots, sent,
         /// received, mean_payload_bytes, received_per_s, max_backlog, queue_max, merges, merge_ms
         /// and latency_ms ({p50, p95, max}, nearest rank), unmapped, catch_up_s, merged_robots, all_merged_s,
-        /// rss_mb ({start, end, peak}).
+        /// rss_mb ({start, end, peak}), and joint with --joint.
         #[arg(long)]
         json: bool,
+        /// Then run the station's joint pose graph on the final map's robots and report its time,
+        /// edges and keyframe RMSE against the truth, rigid and joint (JSON: joint {ms, edges_ms,
+        /// consistency_ms, optimise_ms, robots, keyframes, registered, kept, joined, rigid_rmse_m,
+        /// joint_rmse_m, edge_error_m, edge_error_deg}).
+        #[arg(long)]
+        joint: bool,
     },
 }
 
@@ -121,8 +128,9 @@ fn main() -> Result<()> {
         None => run_demo(cli.run)?,
         Some(Command::Run(args)) => run_demo(args)?,
         Some(Command::Report(args)) => run_report(args)?,
-        Some(Command::Bench(Bench::Load { robots, rate_hz, seconds, scenario, json })) => {
-            let config = LoadConfig { robots, rate_hz, seconds, scenario, ..LoadConfig::new() };
+        Some(Command::Bench(Bench::Load { robots, rate_hz, seconds, scenario, json, joint })) => {
+            let joint = joint.then(JointConfig::default);
+            let config = LoadConfig { robots, rate_hz, seconds, scenario, joint, ..LoadConfig::new() };
             let report = runtime()?.block_on(fleet_load::run(config))?;
             if json {
                 println!("{}", serde_json::to_string(&report)?);

@@ -16,7 +16,7 @@ fn number(report: &Value, path: &[&str]) -> f64 {
 
 #[test]
 fn a_small_fleet_reports_every_keyframe_merged_with_its_latency() {
-    let run = bench_load(&["--robots", "2", "--rate-hz", "5", "--seconds", "3", "--json"]);
+    let run = bench_load(&["--robots", "2", "--rate-hz", "5", "--seconds", "3", "--json", "--joint"]);
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(run.status.success(), "bench load failed:\n{stderr}");
     let stdout = String::from_utf8(run.stdout).unwrap();
@@ -47,6 +47,16 @@ fn a_small_fleet_reports_every_keyframe_merged_with_its_latency() {
         assert!(all_merged.is_some(), "{report}");
     }
     assert!(all_merged.is_none_or(|s| s > 0.0), "{report}");
+    // The joint graph ran on the final map's merged robots: every keyframe of theirs is a pose.
+    let merged = number(&report, &["merged_robots"]);
+    assert_eq!(number(&report, &["joint", "robots"]), merged, "{report}");
+    assert_eq!(number(&report, &["joint", "keyframes"]), merged * 5.0 * 3.0, "{report}");
+    let (registered, kept, joined) = (
+        number(&report, &["joint", "registered"]),
+        number(&report, &["joint", "kept"]),
+        number(&report, &["joint", "joined"]),
+    );
+    assert!(kept <= registered && 1.0 <= joined && joined <= merged, "{report}");
 }
 
 #[test]

@@ -22,7 +22,7 @@ fn the_demo_flags_are_at_the_top_and_under_run() {
 #[test]
 fn bench_load_keeps_its_flags() {
     let help = emr_demo(&["bench", "load", "--help"]);
-    for flag in ["--robots", "--rate-hz", "--seconds", "--scenario", "campus"] {
+    for flag in ["--robots", "--rate-hz", "--seconds", "--scenario", "campus", "--joint"] {
         assert!(help.contains(flag), "lacks {flag}:\n{help}");
     }
 }

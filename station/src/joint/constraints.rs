@@ -1,10 +1,10 @@
 //! Inter-robot edges: where two merged robots passed the same place, one's keyframe registered
 //! onto the other's submap.
 //!
-//! For each keyframe `k` of robot `b` (every [`JointConfig::stride`]-th) and each robot `a < b`,
-//! the keyframe `j` of `a` nearest to it in the global frame (by (1) of [`super`]) within
-//! [`JointConfig::reach`] is the target: keyframes `j - w ..= j + w` of `a`
-//! ([`JointConfig::window`]) in the frame of `j`,
+//! For each keyframe `k` of robot `b` (those at least [`JointConfig::spacing`] apart along its
+//! path) and each robot `a < b`, the keyframe `j` of `a` nearest to it in the global frame (by (1)
+//! of [`super`]) within [`JointConfig::reach`] is the target: the keyframes `i` of `a` within
+//! [`JointConfig::window`] of `j` along its path in the frame of `j`,
 //!
 //! ```text
 //! Sⱼ = ∪ᵢ Pₐⱼ⁻¹ Pₐᵢ · cloudₐᵢ                                                        (2)
@@ -14,7 +14,9 @@
 //! `Z = T` from `(a, j)` to `(b, k)` when VGICP converged, at least [`JointConfig::min_overlap`]
 //! of the keyframe's points found a correspondence, and `T` lies within
 //! [`JointConfig::max_translation`] / [`JointConfig::max_rotation_deg`] of its start. Each unordered
-//! pair of robots is searched once: an edge holds the same information either way round.
+//! pair of robots is searched once: an edge holds the same information either way round. Each
+//! target's submap is built once for every keyframe registered onto it (a robot that stopped is
+//! the nearest to everyone passing by).
 
 use std::sync::Arc;
 
@@ -60,12 +62,12 @@ pub fn find(paths: &[RobotPath], config: &JointConfig) -> Vec<Constraint> {
             KdTree::from_points(&at)
         })
         .collect();
-    let candidates: Vec<(KeyframeRef, KeyframeRef)> = paths
+    let mut candidates: Vec<(KeyframeRef, KeyframeRef)> = paths
         .iter()
         .enumerate()
         .flat_map(|(b, path)| {
             let positions = &positions;
-            (0..path.poses.len()).step_by(config.stride).flat_map(move |k| {
+            spaced(&path.poses, config.spacing).into_iter().flat_map(move |k| {
                 let at = path.placed(k).translation.vector.cast::<f32>();
                 (0..b).filter_map(move |a| {
                     let near = positions[a].nearest_within(&[at.x, at.y, at.z], gate_radius(config.reach as f32))?;
@@ -77,39 +79,86 @@ pub fn find(paths: &[RobotPath], config: &JointConfig) -> Vec<Constraint> {
             })
         })
         .collect();
-    // Each source keyframe's Gaussians once, for every robot it is tried against.
-    let mut by_source: Vec<(KeyframeRef, Vec<KeyframeRef>)> = Vec::new();
-    for (target, source) in candidates {
-        match by_source.last_mut() {
-            Some((s, targets)) if *s == source => targets.push(target),
-            _ => by_source.push((source, vec![target])),
-        }
-    }
-    by_source
+    // Each target's submap once, for every keyframe registered onto it.
+    candidates.sort_by_key(|(t, s)| (t.robot, t.keyframe, s.robot, s.keyframe));
+    let by_target: Vec<&[(KeyframeRef, KeyframeRef)]> = candidates.chunk_by(|x, y| x.0 == y.0).collect();
+    by_target
         .par_iter()
-        .flat_map_iter(|(source, targets)| {
-            let cloud = &paths[source.robot].clouds[source.keyframe];
-            let keyframe = gaussians(std::slice::from_ref(cloud), &[Isometry3::identity()], config);
-            targets.iter().filter_map(move |&target| register(paths, keyframe.as_ref()?, target, *source, config))
+        .flat_map_iter(|group| {
+            let target = group[0].0;
+            let submap = submap(&paths[target.robot], target.keyframe, config);
+            group.iter().filter_map(move |&(target, source)| {
+                let cloud = &paths[source.robot].clouds[source.keyframe];
+                let keyframe = gaussians(std::slice::from_ref(cloud), &[Isometry3::identity()], config)?;
+                register(paths, &keyframe, submap.as_ref()?, target, source, config)
+            })
         })
         .collect()
+}
+
+/// Indices of the keyframes at least `spacing` apart along the path (by the poses' positions),
+/// the first one first.
+fn spaced(poses: &[Isometry3<f64>], spacing: f64) -> Vec<usize> {
+    let mut kept = Vec::new();
+    let mut travelled = f64::INFINITY;
+    for (k, pose) in poses.iter().enumerate() {
+        if k > 0 {
+            travelled += (pose.translation.vector - poses[k - 1].translation.vector).norm();
+        }
+        if travelled >= spacing {
+            kept.push(k);
+            travelled = 0.0;
+        }
+    }
+    kept
+}
+
+/// The submap (2) of keyframe `j` of robot `a`: the keyframes within [`JointConfig::window`] of it
+/// along the path, at least [`JointConfig::spacing`] apart, in the frame of `j`.
+fn submap(a: &RobotPath, j: usize, config: &JointConfig) -> Option<GaussianCloud> {
+    let before = spread(a.poses[..=j].iter().rev(), config).into_iter().map(|i| j - i);
+    let after = spread(a.poses[j..].iter(), config).into_iter().skip(1).map(|i| j + i);
+    let window: Vec<usize> = before.rev().chain(after).collect();
+    let into_j: Vec<Isometry3<f64>> = window.iter().map(|&i| a.poses[j].inverse() * a.poses[i]).collect();
+    let clouds: Vec<Arc<PointCloud>> = window.iter().map(|&i| Arc::clone(&a.clouds[i])).collect();
+    gaussians(&clouds, &into_j, config)
+}
+
+/// Steps along `poses` (the first is the target keyframe) of the keyframes within
+/// [`JointConfig::window`] of path from it, at least [`JointConfig::spacing`] apart; the first
+/// included.
+fn spread<'a>(poses: impl Iterator<Item = &'a Isometry3<f64>>, config: &JointConfig) -> Vec<usize> {
+    let (mut kept, mut path, mut since) = (vec![0], 0.0, 0.0);
+    let mut previous: Option<&Isometry3<f64>> = None;
+    for (i, pose) in poses.enumerate() {
+        if let Some(p) = previous {
+            let step = (pose.translation.vector - p.translation.vector).norm();
+            path += step;
+            since += step;
+            if path > config.window {
+                break;
+            }
+            if since >= config.spacing {
+                kept.push(i);
+                since = 0.0;
+            }
+        }
+        previous = Some(pose);
+    }
+    kept
 }
 
 /// The edge from `target`'s submap (2) to `source`, if it passes the checks.
 fn register(
     paths: &[RobotPath],
     keyframe: &GaussianCloud,
+    submap: &GaussianCloud,
     target: KeyframeRef,
     source: KeyframeRef,
     config: &JointConfig,
 ) -> Option<Constraint> {
-    let a = &paths[target.robot];
-    let j = target.keyframe;
-    let window = j.saturating_sub(config.window)..=(j + config.window).min(a.poses.len() - 1);
-    let into_j: Vec<Isometry3<f64>> = window.clone().map(|i| a.poses[j].inverse() * a.poses[i]).collect();
-    let submap = gaussians(&a.clouds[window], &into_j, config)?;
-    let start = a.placed(j).inverse() * paths[source.robot].placed(source.keyframe);
-    let result = align_gaussians(keyframe, &submap, &start, JointConfig::METHOD, &config.registration).ok()?;
+    let start = paths[target.robot].placed(target.keyframe).inverse() * paths[source.robot].placed(source.keyframe);
+    let result = align_gaussians(keyframe, submap, &start, JointConfig::METHOD, &config.registration).ok()?;
     let moved = pose_error(&result.transform, &start);
     let overlap = result.inliers as f64 / keyframe.len() as f64;
     let kept = result.converged
