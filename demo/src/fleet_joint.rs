@@ -9,6 +9,7 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use cloud::se3::pose_error;
+use cloud::trajectory::ate;
 use nalgebra::Isometry3;
 use proto::GlobalMap;
 use serde::Serialize;
@@ -124,22 +125,18 @@ fn edge_errors(constraints: &[Constraint], truth: &[Option<Vec<Isometry3<f64>>>]
         .unzip()
 }
 
-/// RMSE of the positions `pose(r, k)` against the truth over every robot but the reference.
+/// RMSE of the positions `pose(r, k)` against the truth over every robot but the reference
+/// (unaligned ATE, [`ate`]).
 fn rmse(
     input: &JointInput,
     truth: &[Option<Vec<Isometry3<f64>>>],
     pose: impl Fn(usize, usize) -> Isometry3<f64>,
 ) -> Option<f64> {
-    let squares: Vec<f64> = (0..input.paths.len())
+    let (truth, estimate): (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>) = (0..input.paths.len())
         .filter(|&r| r != input.reference)
         .filter_map(|r| Some((r, truth[r].as_ref()?)))
-        .flat_map(|(r, truth)| {
-            let pose = &pose;
-            truth
-                .iter()
-                .enumerate()
-                .map(move |(k, t)| (pose(r, k).translation.vector - t.translation.vector).norm_squared())
-        })
-        .collect();
-    (!squares.is_empty()).then(|| (squares.iter().sum::<f64>() / squares.len() as f64).sqrt())
+        .flat_map(|(r, truth)| truth.iter().enumerate().map(move |(k, t)| (*t, (r, k))))
+        .map(|(t, (r, k))| (t, pose(r, k)))
+        .unzip();
+    ate(&truth, &estimate, false).ok().map(|a| a.rmse)
 }

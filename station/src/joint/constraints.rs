@@ -67,7 +67,7 @@ pub fn find(paths: &[RobotPath], config: &JointConfig) -> Vec<Constraint> {
         .enumerate()
         .flat_map(|(b, path)| {
             let positions = &positions;
-            spaced(&path.poses, config.spacing).into_iter().flat_map(move |k| {
+            spread(path.poses.iter(), config.spacing, f64::INFINITY).into_iter().flat_map(move |k| {
                 let at = path.placed(k).translation.vector.cast::<f32>();
                 (0..b).filter_map(move |a| {
                     let near = positions[a].nearest_within(&[at.x, at.y, at.z], gate_radius(config.reach as f32))?;
@@ -96,52 +96,34 @@ pub fn find(paths: &[RobotPath], config: &JointConfig) -> Vec<Constraint> {
         .collect()
 }
 
-/// Indices of the keyframes at least `spacing` apart along the path (by the poses' positions),
-/// the first one first.
-fn spaced(poses: &[Isometry3<f64>], spacing: f64) -> Vec<usize> {
-    let mut kept = Vec::new();
-    let mut travelled = f64::INFINITY;
-    for (k, pose) in poses.iter().enumerate() {
-        if k > 0 {
-            travelled += (pose.translation.vector - poses[k - 1].translation.vector).norm();
-        }
-        if travelled >= spacing {
-            kept.push(k);
-            travelled = 0.0;
-        }
-    }
-    kept
-}
-
 /// The submap (2) of keyframe `j` of robot `a`: the keyframes within [`JointConfig::window`] of it
 /// along the path, at least [`JointConfig::spacing`] apart, in the frame of `j`.
 fn submap(a: &RobotPath, j: usize, config: &JointConfig) -> Option<GaussianCloud> {
-    let before = spread(a.poses[..=j].iter().rev(), config).into_iter().map(|i| j - i);
-    let after = spread(a.poses[j..].iter(), config).into_iter().skip(1).map(|i| j + i);
+    let before = spread(a.poses[..=j].iter().rev(), config.spacing, config.window).into_iter().map(|i| j - i);
+    let after = spread(a.poses[j..].iter(), config.spacing, config.window).into_iter().skip(1).map(|i| j + i);
     let window: Vec<usize> = before.rev().chain(after).collect();
     let into_j: Vec<Isometry3<f64>> = window.iter().map(|&i| a.poses[j].inverse() * a.poses[i]).collect();
     let clouds: Vec<Arc<PointCloud>> = window.iter().map(|&i| Arc::clone(&a.clouds[i])).collect();
     gaussians(&clouds, &into_j, config)
 }
 
-/// Steps along `poses` (the first is the target keyframe) of the keyframes within
-/// [`JointConfig::window`] of path from it, at least [`JointConfig::spacing`] apart; the first
-/// included.
-fn spread<'a>(poses: impl Iterator<Item = &'a Isometry3<f64>>, config: &JointConfig) -> Vec<usize> {
-    let (mut kept, mut path, mut since) = (vec![0], 0.0, 0.0);
+/// Steps along `poses` of the keyframes at least `spacing` apart along the path, the first
+/// included, up to `length` of path from the first.
+fn spread<'a>(poses: impl Iterator<Item = &'a Isometry3<f64>>, spacing: f64, length: f64) -> Vec<usize> {
+    let (mut kept, mut path, mut since) = (vec![], 0.0, 0.0);
     let mut previous: Option<&Isometry3<f64>> = None;
     for (i, pose) in poses.enumerate() {
         if let Some(p) = previous {
             let step = (pose.translation.vector - p.translation.vector).norm();
             path += step;
             since += step;
-            if path > config.window {
+            if path > length {
                 break;
             }
-            if since >= config.spacing {
-                kept.push(i);
-                since = 0.0;
-            }
+        }
+        if previous.is_none() || since >= spacing {
+            kept.push(i);
+            since = 0.0;
         }
         previous = Some(pose);
     }
