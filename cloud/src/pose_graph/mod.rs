@@ -82,6 +82,21 @@ impl OdometryNoise {
         let (sigma_m, sigma_deg) = self.sigmas(step);
         diagonal_information(sigma_m, sigma_deg)
     }
+
+    /// [`OdometryNoise::sigmas`] for a path keyed at any rate: below a metre of travel the least
+    /// deviations shrink with the square root of the step, as a random walk's do (the variances of
+    /// n steps of 1/n metre add up to one metre's), so that a robot keyed every sweep is held as
+    /// firmly as one keyed every metre; from a metre on the two are the same. A radian turned
+    /// counts as a metre travelled; a step that neither moves nor turns is held to a hundredth of
+    /// the least deviations, so that no information is infinite.
+    pub fn sigmas_along_path(&self, step: &Isometry3<f64>) -> (f64, f64) {
+        let length = step.translation.vector.norm();
+        let share = (length + step.rotation.angle()).clamp(1e-4, 1.0).sqrt();
+        (
+            (self.drift * length).max(self.min_sigma_m * share),
+            (self.rotation_deg_per_m * length).max(self.min_sigma_deg * share),
+        )
+    }
 }
 
 /// The information of an edge whose translation and rotation errors are independent, each axis
@@ -348,6 +363,26 @@ mod tests {
             information: Matrix6::identity(),
             kind: EdgeKind::Odometry,
         }
+    }
+
+    #[test]
+    fn short_steps_add_up_to_a_metre_as_a_random_walk() {
+        let noise = OdometryNoise { drift: 0.01, rotation_deg_per_m: 0.01, min_sigma_m: 0.01, min_sigma_deg: 0.1 };
+        let metre = Isometry3::translation(1.0, 0.0, 0.0);
+        assert_eq!(noise.sigmas_along_path(&metre), noise.sigmas(&metre));
+        let long = Isometry3::translation(0.0, 5.0, 0.0);
+        assert_eq!(noise.sigmas_along_path(&long), noise.sigmas(&long));
+        // Five steps of 0.2 m: their variances add up to one metre's.
+        let (m, deg) = noise.sigmas_along_path(&Isometry3::translation(0.2, 0.0, 0.0));
+        let (metre_m, metre_deg) = noise.sigmas(&metre);
+        assert!((5.0 * m * m - metre_m * metre_m).abs() < 1e-12, "{m}");
+        assert!((5.0 * deg * deg - metre_deg * metre_deg).abs() < 1e-12, "{deg}");
+        // Standing still: held firmly, but not infinitely.
+        let (m, deg) = noise.sigmas_along_path(&Isometry3::identity());
+        assert!(m > 0.0 && m < 1e-3 && deg > 0.0 && deg < 1e-2, "{m} {deg}");
+        // A quarter turn in place counts as more than a metre.
+        let turn = Isometry3::rotation(nalgebra::Vector3::z() * std::f64::consts::FRAC_PI_2);
+        assert_eq!(noise.sigmas_along_path(&turn).1, noise.min_sigma_deg);
     }
 
     #[test]

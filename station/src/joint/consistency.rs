@@ -51,11 +51,12 @@ fn agree(paths: &[RobotPath], c1: &Constraint, c2: &Constraint, config: &JointCo
         && difference.rotation_deg <= config.consistency_sigmas * sigma_deg
 }
 
-/// Deviation of the difference (3): two edges' and two odometry stretches', independent.
+/// Deviation of the difference (3): two edges' ([`JointConfig::consistency_sigma_m`]) and two
+/// odometry stretches', independent.
 fn deviation(odometry_a: &Isometry3<f64>, odometry_b: &Isometry3<f64>, config: &JointConfig) -> (f64, f64) {
     let ((ta, ra), (tb, rb)) = (config.odometry.sigmas(odometry_a), config.odometry.sigmas(odometry_b));
-    let sigma_m = (2.0 * config.sigma_m.powi(2) + ta * ta + tb * tb).sqrt();
-    let sigma_deg = (2.0 * config.sigma_deg.powi(2) + ra * ra + rb * rb).sqrt();
+    let sigma_m = (2.0 * config.consistency_sigma_m.powi(2) + ta * ta + tb * tb).sqrt();
+    let sigma_deg = (2.0 * config.consistency_sigma_deg.powi(2) + ra * ra + rb * rb).sqrt();
     (sigma_m, sigma_deg)
 }
 

@@ -12,12 +12,14 @@
 //! (`Pᵣₖ` the robot's loop-closed keyframe pose in its odometry frame), joined by
 //!
 //! - **odometry edges** between consecutive keyframes of a robot, `Z = Pᵣ,ₖ₋₁⁻¹ Pᵣₖ`, weighed by
-//!   [`JointConfig::odometry`] (drift grows with the distance travelled);
+//!   [`JointConfig::odometry`] (drift grows with the distance travelled, as a random walk's below a
+//!   metre: [`cloud::pose_graph::OdometryNoise::sigmas_along_path`]);
 //! - **inter-robot edges** ([`constraints`]): a keyframe of one robot registered (VGICP) onto the
 //!   submap around the nearest keyframe of another, from where (1) puts it; `Z` is the registered
 //!   pose of the one in the frame of the other, weighed by [`JointConfig::sigma_m`] /
-//!   [`JointConfig::sigma_deg`] under the optimiser's robust loop kernel, and kept only where they
-//!   agree with each other ([`consistency`]: per pair of robots, the largest set that does).
+//!   [`JointConfig::sigma_deg`], grown with the distance between the two keyframes
+//!   ([`JointConfig::sigma_growth`]), under the optimiser's robust loop kernel, and kept only where
+//!   they agree with each other ([`consistency`]: per pair of robots, the largest set that does).
 //!
 //! The first keyframe of the reference robot is held (the global frame is the rigid merge's); a
 //! robot that no inter-robot edge links to the reference, directly or through others, keeps its
@@ -63,14 +65,19 @@ impl RobotPath {
 #[derive(Clone, Debug, PartialEq)]
 pub struct JointConfig {
     /// How far the robots' odometry may be off between keyframes. Default the robots' own
-    /// keyframe graph's: 1 % of the distance, 0.01 deg/m, at least 1 cm and 0.1 deg.
+    /// keyframe graph's: 1 % of the distance, 0.01 deg/m, at least 1 cm and 0.1 deg over a metre,
+    /// shrinking with the square root of shorter steps
+    /// ([`OdometryNoise::sigmas_along_path`]): 0.45 cm and 0.045 deg for keyframes 0.2 m apart.
+    /// With the least deviations per step, a robot keyed every sweep was held 2.2 times looser
+    /// than one keyed every metre, and on the load bench's 16 robots (exact maps, keyed every
+    /// sweep) the joint graph bent them by 3.4 cm against 2.7.
     pub odometry: OdometryNoise,
     /// Keyframes of two robots at most this far apart in the global frame, by (1), are registered
     /// onto each other, metres. Default 10: well inside a LiDAR's range, so the two scans share
     /// most of what they see.
     pub reach: f64,
     /// A robot's keyframes are tried against the others at least this far apart along its path,
-    /// metres. Default 1: an edge per metre travelled, between which the odometry is good to a
+    /// metres. Default 0.8: about an edge per metre travelled, between which the odometry is good to a
     /// centimetre (a robot that sends a keyframe per sweep, 0.2 m apart at 2 m/s, would otherwise
     /// cost five registrations where one does).
     pub spacing: f64,
@@ -97,12 +104,27 @@ pub struct JointConfig {
     pub max_rotation_deg: f64,
     /// Least share of the keyframe's points with a correspondence in the submap. Default 0.5.
     pub min_overlap: f64,
-    /// Deviation of an inter-robot edge's translation, metres. Default 0.03: where the
-    /// keyframe-to-submap VGICP converges on the truth (simulated warehouse keyframes 2-9 m apart)
-    /// it lands 0.3-5 cm from it.
+    /// Deviation of the translation of an inter-robot edge between keyframes at the same place,
+    /// metres. Default 0.01: keyframes of two robots on the simulated campus, at their true poses,
+    /// less than a metre apart registered 0.2-0.5 cm and 0.03-0.14 deg from the truth.
     pub sigma_m: f64,
-    /// ... and of its rotation, degrees. Default 0.3 (there: 0.04-0.3 deg).
+    /// ... and of its rotation, degrees. Default 0.1.
     pub sigma_deg: f64,
+    /// Both deviations grow by this many times themselves for every metre between the two
+    /// keyframes: `σ(d) = σ (1 + g d)` (4). Default 0.5 (3 cm and 0.3 deg at 4 m): there,
+    /// keyframes 1-5 m apart registered 0.1-2.1 cm and 0.03-0.49 deg from the truth, 5-10 m apart
+    /// 0.8-3.3 cm and 0.11-0.58 deg (the two scans share less, and what they share lies farther
+    /// from the keyframe). Weighed alike (3 cm, 0.3 deg), the edges bent the exact maps of the load
+    /// bench's 16 robots by 2.7 cm; by (4), 1.0 cm (0.5 cm and 0.05 deg growing by 1 a metre: 1.05
+    /// cm, but the simulated warehouse-large's odometry-built maps 0.4 cm further off the truth).
+    pub sigma_growth: f64,
+    /// Deviation an edge is given in the consistency check ([`consistency`]), whatever the
+    /// distance between its keyframes, metres. Default 0.03. The check is there to drop edges that
+    /// slid by decimetres; with (4) there, it also dropped 29 of the simulated warehouse-large's
+    /// 191 edges, which lay a few centimetres off the rest where the robots' own maps bend.
+    pub consistency_sigma_m: f64,
+    /// ... and its rotation, degrees. Default 0.3.
+    pub consistency_sigma_deg: f64,
     /// Two edges between the same robots agree when (3) of [`consistency`] differs by at most this
     /// many deviations. Default 3.
     pub consistency_sigmas: f64,
@@ -138,8 +160,11 @@ impl Default for JointConfig {
             max_translation: 1.0,
             max_rotation_deg: 3.0,
             min_overlap: 0.5,
-            sigma_m: 0.03,
-            sigma_deg: 0.3,
+            sigma_m: 0.01,
+            sigma_deg: 0.1,
+            sigma_growth: 0.5,
+            consistency_sigma_m: 0.03,
+            consistency_sigma_deg: 0.3,
             consistency_sigmas: 3.0,
             min_consistent: 3,
             tilt_sigma_deg: 0.001,
@@ -155,11 +180,18 @@ impl JointConfig {
     /// The information of an odometry edge over `step`: [`JointConfig::odometry`]'s, its roll and
     /// pitch held by [`JointConfig::tilt_sigma_deg`].
     fn odometry_information(&self, step: &Isometry3<f64>) -> Matrix6<f64> {
-        let mut information = self.odometry.information(step);
+        let (sigma_m, sigma_deg) = self.odometry.sigmas_along_path(step);
+        let mut information = diagonal_information(sigma_m, sigma_deg);
         let tilt = 1.0 / self.tilt_sigma_deg.to_radians().powi(2);
         information[(3, 3)] = tilt;
         information[(4, 4)] = tilt;
         information
+    }
+
+    /// The deviations (4) of `edge`, metres and degrees.
+    pub fn edge_sigmas(&self, edge: &Constraint) -> (f64, f64) {
+        let grown = 1.0 + self.sigma_growth * edge.measurement.translation.vector.norm();
+        (self.sigma_m * grown, self.sigma_deg * grown)
     }
 
     fn validate(&self) -> Result<(), JointError> {
@@ -176,6 +208,10 @@ impl JointConfig {
             && (0.0..=1.0).contains(&self.min_overlap)
             && positive(self.sigma_m)
             && positive(self.sigma_deg)
+            && positive(self.consistency_sigma_m)
+            && positive(self.consistency_sigma_deg)
+            && self.sigma_growth.is_finite()
+            && self.sigma_growth >= 0.0
             && positive(self.consistency_sigmas)
             && positive(self.tilt_sigma_deg);
         ok.then_some(()).ok_or(JointError::InvalidConfig)
@@ -365,9 +401,10 @@ fn build(
         }
     }
     let node = |k: &KeyframeRef| first[k.robot].map(|s| s + k.keyframe);
-    let information = diagonal_information(config.sigma_m, config.sigma_deg);
     for c in constraints {
         if let (Some(from), Some(to)) = (node(&c.target), node(&c.source)) {
+            let (sigma_m, sigma_deg) = config.edge_sigmas(c);
+            let information = diagonal_information(sigma_m, sigma_deg);
             graph.add_edge(Edge { from, to, measurement: c.measurement, information, kind: EdgeKind::Loop })?;
         }
     }
