@@ -270,7 +270,7 @@ pub enum JointError {
     },
     /// A setting is out of range.
     #[error(
-        "invalid joint-graph configuration: reach, voxel, limits and deviations must be positive, spacing and window finite and not negative, overlap within 0-1"
+        "invalid joint-graph configuration: reach, voxel, limits and deviations must be positive, spacing, window and sigma_growth finite and not negative, overlap within 0-1"
     )]
     InvalidConfig,
     /// A pose or edge was refused, or the optimisation failed.
