@@ -73,8 +73,7 @@ pub struct OdometryNoise {
 impl OdometryNoise {
     /// Deviations of the translation (m) and rotation (deg) of an odometry step over `step`.
     pub fn sigmas(&self, step: &Isometry3<f64>) -> (f64, f64) {
-        let length = step.translation.vector.norm();
-        ((self.drift * length).max(self.min_sigma_m), (self.rotation_deg_per_m * length).max(self.min_sigma_deg))
+        self.deviations(step.translation.vector.norm(), 1.0)
     }
 
     /// The information of an odometry edge over `step` (diagonal, tangent `[ρ; φ]`).
@@ -91,7 +90,11 @@ impl OdometryNoise {
     /// the least deviations, so that no information is infinite.
     pub fn sigmas_along_path(&self, step: &Isometry3<f64>) -> (f64, f64) {
         let length = step.translation.vector.norm();
-        let share = (length + step.rotation.angle()).clamp(1e-4, 1.0).sqrt();
+        self.deviations(length, (length + step.rotation.angle()).clamp(1e-4, 1.0).sqrt())
+    }
+
+    /// The drift over `length` metres, at least `share` of the least deviations.
+    fn deviations(&self, length: f64, share: f64) -> (f64, f64) {
         (
             (self.drift * length).max(self.min_sigma_m * share),
             (self.rotation_deg_per_m * length).max(self.min_sigma_deg * share),
