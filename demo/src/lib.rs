@@ -29,6 +29,7 @@ use edge::source::SourceSpec;
 use nalgebra::Isometry3;
 use proto::{Fleet, GlobalMap, MergeStatus};
 use serde_json::{Value, json};
+use sim::SimConfig;
 use station::joint::{self, JointConfig};
 use station::merge::MergeConfig;
 use station::merge::files::{self, FilesError};
@@ -58,6 +59,8 @@ pub struct DemoConfig {
     pub method: Method,
     /// Robots close their own loops (default true: the paper's EMR systems; false: MR).
     pub loops: bool,
+    /// Seed of the simulated sensors' range noise and dropouts (default 0).
+    pub seed: u64,
 }
 
 impl DemoConfig {
@@ -78,6 +81,7 @@ impl DemoConfig {
             station,
             method: Method::Floam,
             loops: true,
+            seed: 0,
         }
     }
 }
@@ -249,6 +253,7 @@ async fn start_edge(
             let _ = done.send((robot, SourceDone { keyframes: s.keyframes, pose_revision: s.posegraph_revision }));
         }))),
         loops: config.loops,
+        sim: SimConfig { seed: config.seed, ..SimConfig::default() },
         ..NodeConfig::new(config.station.fleet.clone(), robot, source)
     };
     node_config.odometry.method = config.method;
@@ -511,6 +516,7 @@ fn summary_json(config: &DemoConfig, map: &GlobalMap, robots: &[RobotResult], ti
         .collect();
     json!({
         "scenario": config.scenario,
+        "seed": config.seed,
         "fleet": config.station.fleet.as_str(),
         "revision": map.revision,
         "reference_robot": map.reference_robot,

@@ -73,6 +73,10 @@ struct RunArgs {
     /// Play scans at sensor speed (10 Hz) instead of as fast as the odometry goes.
     #[arg(long)]
     realtime: bool,
+    /// Seed of the simulated sensors' range noise and dropouts: one seed's figures are one
+    /// sample of the noise, so judge a change over several.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
     /// Output directory.
     #[arg(long, default_value = "out/demo")]
     out: PathBuf,
@@ -143,12 +147,13 @@ fn main() -> Result<()> {
 }
 
 fn run_demo(args: RunArgs) -> Result<()> {
-    let RunArgs { scenario, robots, frames, realtime, out, live } = args;
+    let RunArgs { scenario, robots, frames, realtime, seed, out, live } = args;
     let mut config = DemoConfig {
         scenario,
         robots,
         frames,
         rate: if realtime { Rate::Realtime } else { Rate::Max },
+        seed,
         out,
         ..DemoConfig::new()
     };

@@ -195,3 +195,25 @@ fn odometry_records_the_run_for_foxglove() {
     assert!(count("/robot2/trajectory", "foxglove.PosesInFrame") >= 1);
     assert!(count("/robot2/loops", "foxglove.SceneUpdate") >= 1);
 }
+
+#[test]
+fn the_seed_changes_the_simulated_noise_and_nothing_else() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |name: &str, seed: &str| {
+        let out = dir.path().join(name);
+        let args = ["odometry", "sim:warehouse-small:1", "--no-loops", "--max-frames", "8", "--seed", seed];
+        let run = emr_edge(&[&args[..], &["--out", out.to_str().unwrap()]].concat());
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let read = |file: &str| std::fs::read_to_string(out.join(file)).unwrap();
+        (read("poses_kitti.txt"), read("poses_gt_kitti.txt"))
+    };
+    let (first, truth) = run("a", "0");
+    let (again, _) = run("b", "0");
+    let (other, other_truth) = run("c", "7");
+    assert_eq!(first, again, "one seed, one run");
+    assert_eq!(truth, other_truth, "the robot drives the same path");
+    assert_ne!(first, other, "another seed, other noise, other estimates");
+    let bad = emr_edge(&["odometry", "sim:warehouse-small:1", "--seed", "one", "--out", dir.path().to_str().unwrap()]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--seed"), "{}", String::from_utf8_lossy(&bad.stderr));
+}

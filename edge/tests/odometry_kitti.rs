@@ -9,6 +9,7 @@ use edge::odometry::pipeline::{self, OdometryPipeline, Tuning};
 use edge::odometry::{Odometry, OdometryConfig};
 use edge::recording::{RecordingOptions, RingModel, Spin, TimeModel, open};
 use edge::source::SourceSpec;
+use sim::SimConfig;
 
 fn data() -> PathBuf {
     testkit::shared_data("kitti00")
@@ -62,7 +63,10 @@ fn the_pipeline_writes_the_poses_the_odometry_estimates() {
     };
     let out = tempfile::tempdir().unwrap();
     let input = SourceSpec::Recording(data());
-    let report = OdometryPipeline::new(&input, None, None, config, out.path()).unwrap().run(|_| {}).unwrap();
+    let report = OdometryPipeline::new(&input, None, None, config, &SimConfig::default(), out.path())
+        .unwrap()
+        .run(|_| {})
+        .unwrap();
     assert_eq!(report.summary.frames, by_hand.poses.len());
     // A directory of scans carries no ground truth: no accuracy figures, no truth file.
     assert!(report.ate_rmse_m.is_none() && !out.path().join("poses_gt_kitti.txt").exists());

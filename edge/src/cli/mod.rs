@@ -49,6 +49,17 @@ pub struct SourceArgs {
     /// Topic of sensor_msgs/PointCloud2 in a bag or MCAP file [default: the only one].
     #[arg(long)]
     topic: Option<String>,
+    /// Seed of a simulated sensor's range noise and dropouts (`sim:` sources). A simulated run's
+    /// figures are one sample of the noise: compare changes over several seeds.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+impl SourceArgs {
+    /// The simulated sensor's settings: the default VLP-16 with this seed.
+    fn sim(&self) -> ::sim::SimConfig {
+        ::sim::SimConfig { seed: self.seed, ..::sim::SimConfig::default() }
+    }
 }
 
 /// A progress bar on stderr; indicatif draws nothing when stderr is not a terminal.

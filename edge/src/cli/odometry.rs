@@ -51,8 +51,10 @@ pub fn odometry(args: OdometryArgs) -> Result<()> {
         print!("{}", toml::to_string(&config)?);
         return Ok(());
     }
-    let pipeline = OdometryPipeline::new(&args.source.input, args.source.topic, args.max_frames, config, &args.out)?
-        .with_loops(!args.no_loops);
+    let sim = args.source.sim();
+    let pipeline =
+        OdometryPipeline::new(&args.source.input, args.source.topic, args.max_frames, config, &sim, &args.out)?
+            .with_loops(!args.no_loops);
     let live = Arc::new(Live::new());
     if let Some(path) = &args.record {
         live.record_file(path)?;

@@ -123,15 +123,16 @@ pub fn recording_options(topic: Option<String>, config: &OdometryConfig) -> Reco
     }
 }
 
-/// Opens `input` for the odometry (`topic` picks a bag's or MCAP file's point clouds), at most
-/// `max_frames` scans.
+/// Opens `input` for the odometry (`topic` picks a bag's or MCAP file's point clouds, `sim`
+/// configures a simulated sensor), at most `max_frames` scans.
 pub fn open(
     input: &SourceSpec,
     topic: Option<String>,
     max_frames: Option<usize>,
     config: &OdometryConfig,
+    sim: &SimConfig,
 ) -> Result<Source, SourceError> {
-    Source::open(input, max_frames, &SimConfig::default(), &recording_options(topic, config))
+    Source::open(input, max_frames, sim, &recording_options(topic, config))
 }
 
 /// The scans of a source under the error policy: undecodable scans skipped with a warning (and
@@ -344,15 +345,16 @@ pub struct OdometryPipeline {
 }
 
 impl OdometryPipeline {
-    /// Opens the source and creates the output directory; no loop closure.
+    /// Opens the source ([`open`]) and creates the output directory; no loop closure.
     pub fn new(
         input: &SourceSpec,
         topic: Option<String>,
         max_frames: Option<usize>,
         config: OdometryConfig,
+        sim: &SimConfig,
         out: &Path,
     ) -> Result<Self, PipelineError> {
-        let source = open(input, topic, max_frames, &config)?;
+        let source = open(input, topic, max_frames, &config, sim)?;
         std::fs::create_dir_all(out).map_err(|source| PipelineError::CreateDir { path: out.to_owned(), source })?;
         Ok(OdometryPipeline { source, config, loops: false, out: out.to_owned() })
     }

@@ -26,6 +26,10 @@ pub struct LoopsArgs {
     /// e.g. `[loops.consistency]` to try other bounds.
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Seed of the simulated sensors' range noise and dropouts: one seed's figures are one
+    /// sample (see `emr-edge odometry --seed`).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
 }
 
 /// The default cases: every scenario robot, those that revisit places and those that do not (the
@@ -54,6 +58,7 @@ pub fn loops(args: LoopsArgs) -> Result<()> {
         "| source | scans | path | MR ATE | EMR ATE | loops | false loops | worst loop error | odometry between them, worst | rejected: registered + not (right after all) | loop ms/keyframe (median, p95) | optimisations (total ms) |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
+    let sim = ::sim::SimConfig { seed: args.seed, ..::sim::SimConfig::default() };
     for source in &sources {
         let name = source.to_string();
         let preset = if name.contains("campus") { Preset::Outdoor } else { Preset::Indoor };
@@ -64,7 +69,7 @@ pub fn loops(args: LoopsArgs) -> Result<()> {
         }
         let mut track = LoopTrack::new(config.loops.clone());
         let mut odometry = Odometry::new(config.clone())?;
-        let scans = pipeline::Scans::new(pipeline::open(source, None, args.max_frames, &config)?);
+        let scans = pipeline::Scans::new(pipeline::open(source, None, args.max_frames, &config, &sim)?);
         let watch = Stopwatch::start();
         // One core, as a robot's computer would give it.
         let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;

@@ -119,7 +119,13 @@ pub fn bench(what: BenchCommand) -> Result<()> {
         BenchCommand::Sim { sensor, scenario, frames } => super::sim::bench(&scenario, sensor, frames)?,
         BenchCommand::Odometry { source, tuning, frames, runs } => {
             let config = Tuning::from(&tuning).load()?;
-            let scans = pipeline::read_all(pipeline::open(&source.input, source.topic, Some(frames), &config)?)?;
+            let scans = pipeline::read_all(pipeline::open(
+                &source.input,
+                source.topic.clone(),
+                Some(frames),
+                &config,
+                &source.sim(),
+            )?)?;
             println!("{}", odometry::odometry(&scans, &config, runs)?);
         }
         BenchCommand::Robustness(args) => robustness::robustness(args)?,
