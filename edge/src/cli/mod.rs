@@ -49,15 +49,22 @@ pub struct SourceArgs {
     /// Topic of sensor_msgs/PointCloud2 in a bag or MCAP file [default: the only one].
     #[arg(long)]
     topic: Option<String>,
+    #[command(flatten)]
+    sim: SimArgs,
+}
+
+/// The simulated sensors of `sim:` sources (shared by the commands that read them).
+#[derive(clap::Args, Debug)]
+pub struct SimArgs {
     /// Seed of a simulated sensor's range noise and dropouts (`sim:` sources). A simulated run's
     /// figures are one sample of the noise: compare changes over several seeds.
     #[arg(long, default_value_t = 0)]
     seed: u64,
 }
 
-impl SourceArgs {
+impl SimArgs {
     /// The simulated sensor's settings: the default VLP-16 with this seed.
-    fn sim(&self) -> ::sim::SimConfig {
+    fn config(&self) -> ::sim::SimConfig {
         ::sim::SimConfig { seed: self.seed, ..::sim::SimConfig::default() }
     }
 }

@@ -51,7 +51,7 @@ pub fn odometry(args: OdometryArgs) -> Result<()> {
         print!("{}", toml::to_string(&config)?);
         return Ok(());
     }
-    let sim = args.source.sim();
+    let sim = args.source.sim.config();
     let pipeline =
         OdometryPipeline::new(&args.source.input, args.source.topic, args.max_frames, config, &sim, &args.out)?
             .with_loops(!args.no_loops);

@@ -12,6 +12,8 @@ use edge::odometry::pipeline::{self, AteRmse};
 use edge::odometry::{Odometry, OdometryConfig};
 use edge::source::SourceSpec;
 
+use crate::cli::SimArgs;
+
 /// Arguments of `emr-edge bench loops`.
 #[derive(clap::Args, Debug)]
 pub struct LoopsArgs {
@@ -26,10 +28,8 @@ pub struct LoopsArgs {
     /// e.g. `[loops.consistency]` to try other bounds.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Seed of the simulated sensors' range noise and dropouts: one seed's figures are one
-    /// sample (see `emr-edge odometry --seed`).
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
+    #[command(flatten)]
+    sim: SimArgs,
 }
 
 /// The default cases: every scenario robot, those that revisit places and those that do not (the
@@ -58,7 +58,7 @@ pub fn loops(args: LoopsArgs) -> Result<()> {
         "| source | scans | path | MR ATE | EMR ATE | loops | false loops | worst loop error | odometry between them, worst | rejected: registered + not (right after all) | loop ms/keyframe (median, p95) | optimisations (total ms) |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
-    let sim = ::sim::SimConfig { seed: args.seed, ..::sim::SimConfig::default() };
+    let sim = args.sim.config();
     for source in &sources {
         let name = source.to_string();
         let preset = if name.contains("campus") { Preset::Outdoor } else { Preset::Indoor };

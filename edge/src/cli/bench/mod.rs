@@ -119,13 +119,8 @@ pub fn bench(what: BenchCommand) -> Result<()> {
         BenchCommand::Sim { sensor, scenario, frames } => super::sim::bench(&scenario, sensor, frames)?,
         BenchCommand::Odometry { source, tuning, frames, runs } => {
             let config = Tuning::from(&tuning).load()?;
-            let scans = pipeline::read_all(pipeline::open(
-                &source.input,
-                source.topic.clone(),
-                Some(frames),
-                &config,
-                &source.sim(),
-            )?)?;
+            let sim = source.sim.config();
+            let scans = pipeline::read_all(pipeline::open(&source.input, source.topic, Some(frames), &config, &sim)?)?;
             println!("{}", odometry::odometry(&scans, &config, runs)?);
         }
         BenchCommand::Robustness(args) => robustness::robustness(args)?,
