@@ -55,6 +55,6 @@ impl Factor for SignedDistanceFactor {
         let rot = r.source.coords.cross(&m);
         eq.add_row(Vector6::new(m.x, m.y, m.z, rot.x, rot.y, rot.z), r.weight * robust, e);
         eq.sums.weight_sum += r.weight;
-        eq.sums.lever_sum += r.weight * r.source.coords.norm_squared();
+        eq.sums.squares += r.weight * r.source.coords.component_mul(&r.source.coords);
     }
 }

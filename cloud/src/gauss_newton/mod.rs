@@ -28,7 +28,7 @@ mod tests;
 
 pub use factors::{SignedDistance, SignedDistanceFactor};
 pub use normal_equations::{LeverArm, NormalEquations, Sums};
-pub use solve::{Remapped, solve_damped, solve_remapped};
+pub use solve::{Remapped, RotationScale, solve_damped, solve_remapped};
 
 use rayon::prelude::*;
 

@@ -91,8 +91,18 @@ impl<S: Sums> NormalEquations<S> {
 pub struct LeverArm {
     /// `Σ w` (the terms' own weights, before any robust kernel).
     pub weight_sum: f64,
-    /// `Σ w |p|²` over the body-frame points.
-    pub lever_sum: f64,
+    /// `Σ w p∘p` over the body-frame points: `(Σ w x², Σ w y², Σ w z²)`.
+    pub squares: Vector3<f64>,
+}
+
+impl LeverArm {
+    /// The RMS distance of the points from each body axis (m): how far a rotation about that axis
+    /// moves them per radian.
+    pub fn about_axes(&self) -> Vector3<f64> {
+        let sum = self.weight_sum.max(1e-12);
+        let total = self.squares.sum();
+        self.squares.map(|axis| ((total - axis) / sum).max(0.0).sqrt())
+    }
 }
 
 impl Sums for LeverArm {
@@ -101,6 +111,6 @@ impl Sums for LeverArm {
     }
 
     fn merge(self, o: Self) -> Self {
-        LeverArm { weight_sum: self.weight_sum + o.weight_sum, lever_sum: self.lever_sum + o.lever_sum }
+        LeverArm { weight_sum: self.weight_sum + o.weight_sum, squares: self.squares + o.squares }
     }
 }

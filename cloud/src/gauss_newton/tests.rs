@@ -119,10 +119,69 @@ fn a_remapped_solve_keeps_unconstrained_directions_at_zero() {
         })
         .collect();
     let eq = sum_terms(&SignedDistanceFactor::new(&t, f64::INFINITY), &terms);
-    let step = solve_remapped(&eq, 1e-3);
+    let step = solve_remapped(&eq, 1e-3, RotationScale::Common);
     assert_eq!(step.degenerate, 3, "{step:?}");
     for k in [1, 3, 5] {
         assert!(step.delta[k].abs() < 1e-12, "{}", step.delta);
     }
     assert!(step.delta.norm() > 1e-3, "the constrained directions move: {}", step.delta);
+}
+
+/// Plane terms of an aisle seen from its middle (x along it): the floor 0.7 m below across
+/// its 3 m width, the two side walls 1.6 m away up to 0.5 m above the sensor, and the aisle's end
+/// 30 m ahead, placed so that `truth` puts every term on its plane.
+fn aisle(truth: &Isometry3<f64>) -> Vec<SignedDistance> {
+    let mut planes: Vec<(Point3<f64>, Vector3<f64>)> = Vec::new();
+    for i in 0..40 {
+        for j in 0..7 {
+            let (x, y) = (-3.0 + 33.0 * i as f64 / 39.0, -1.5 + 0.5 * j as f64);
+            planes.push((Point3::new(x, y, -0.7), Vector3::z()));
+        }
+        for (j, side) in [-1.6, 1.6].iter().enumerate() {
+            let z = -0.7 + 1.2 * ((i + 3 * j) % 5) as f64 / 4.0;
+            planes.push((Point3::new(-3.0 + 33.0 * i as f64 / 39.0, *side, z), Vector3::new(0.0, -side.signum(), 0.0)));
+        }
+    }
+    for j in 0..20 {
+        planes.push((
+            Point3::new(30.0, -1.5 + 3.0 * (j % 5) as f64 / 4.0, -0.7 + 1.2 * (j / 5) as f64 / 3.0),
+            -Vector3::x(),
+        ));
+    }
+    // The world point is `truth * source`; the term's plane passes through it.
+    planes
+        .into_iter()
+        .map(|(source, normal)| SignedDistance {
+            source,
+            anchor: truth * source,
+            normal: truth.rotation * normal,
+            weight: 1.0,
+        })
+        .collect()
+}
+
+#[test]
+fn a_roll_measured_by_near_surfaces_is_not_left_to_the_prior_along_an_aisle() {
+    // Looking down a 30 m aisle, the far points set a ~12 m RMS lever arm, while a roll moves the
+    // points by their ~1 m offsets from the aisle's axis: measured in the common lever arm the roll
+    // looks unconstrained and would keep its prior (here 0.5 degrees off). Each axis's own lever
+    // arm finds it constrained and solves it.
+    let truth = Isometry3::new(Vector3::new(0.02, -0.01, 0.005), Vector3::new(0.5f64.to_radians(), 0.0, 0.0));
+    let terms = aisle(&truth);
+    let t = Isometry3::identity();
+    let eq = sum_terms(&SignedDistanceFactor::new(&t, f64::INFINITY), &terms);
+    let step = solve_remapped(&eq, 0.01, RotationScale::PerAxis);
+    assert_eq!(step.degenerate, 0, "{step:?}");
+    let solved = update(&t, &step.delta);
+    let error = solved.inverse() * truth;
+    assert!(error.rotation.angle().to_degrees() < 0.01 && error.translation.vector.norm() < 1e-3, "{error:?}");
+    // With the common lever arm the roll is flagged and stays where it started.
+    let common = solve_remapped(&eq, 0.01, RotationScale::Common);
+    assert_eq!(common.degenerate, 1, "{common:?}");
+    let left = (update(&t, &common.delta).inverse() * truth).rotation.angle().to_degrees();
+    assert!((left - 0.5).abs() < 0.01, "{left} deg of roll left");
+    // The scene is what the test says: overall the lever arm is long, about the aisle's axis short.
+    let overall = (eq.sums.squares.sum() / eq.sums.weight_sum).sqrt();
+    let axes = eq.sums.about_axes();
+    assert!(overall > 10.0 && axes.x < 2.0 && axes.y > 10.0 && axes.z > 10.0, "{overall} {axes}");
 }

@@ -5,6 +5,7 @@
 //! them with the command that reproduces each, so the comments here only say why.
 
 use cloud::Preset;
+use cloud::gauss_newton::RotationScale;
 use serde::{Deserialize, Serialize};
 
 pub use super::aloam::{AloamConfig, Method};
@@ -43,6 +44,14 @@ pub struct FeatureConfig {
     /// Whether the near side of an occlusion boundary (an object's silhouette) may be an edge.
     /// Silhouettes of round objects move with the viewpoint. Default true (LOAM).
     pub silhouette_edges: bool,
+    /// Smallest angle (degrees) between the beam and the surfaces on either side of an edge point:
+    /// on a surface seen at a grazing angle the samples lie far apart, and the sharpest point
+    /// there marks where a sample fell rather than a corner; as the robot moves such points slide
+    /// along the surface and tilt the map (warehouse-small robot 2 took 0.25 deg of pitch in its
+    /// first 3 m from a box face seen at 4 deg). Default 20; 0 turns the test off, as the outdoor
+    /// preset does: outdoors edges are few, and without the grazing ones a car at 10 m/s lost its
+    /// way in the robustness matrix (docs/figures.md).
+    pub edge_min_incidence_deg: f32,
     /// Edge features are thinned to one per voxel of this size (m), as F-LOAM downsamples its
     /// input to the map resolution. Default 0.2 m indoor, 0.4 m outdoor.
     pub edge_voxel: f32,
@@ -65,6 +74,7 @@ impl Default for FeatureConfig {
             parallel_beam_ratio: 0.0002,
             suppression_gap: 0.2,
             silhouette_edges: true,
+            edge_min_incidence_deg: 20.0,
             edge_voxel: 0.2,
             plane_voxel: 0.4,
         }
@@ -150,13 +160,22 @@ pub struct SolverConfig {
     pub convergence_rotation: f64,
     /// Fewer correspondences than this: keep the prediction. Default 30.
     pub min_matches: usize,
-    /// An eigen-direction of the normal matrix (sensor frame, rotations scaled to metres by the RMS
-    /// lever arm) is degenerate when its eigenvalue is below this × the sum of weights. Default
-    /// 0.01: along a featureless corridor the axis measures 0.002-0.008 (noisy plane normals keep it
-    /// off zero), well-constrained warehouse and campus scans 0.06-0.08 at the median. The outdoor
-    /// preset uses 0.002: on KITTI's HDL-64 streets most features lie on the ground, and the axis
-    /// along the road measures 0.004-0.006 while it is well constrained.
+    /// An eigen-direction of the normal matrix (sensor frame, each rotation scaled to metres by its
+    /// own lever arm, the features' RMS distance from its axis) is degenerate when its eigenvalue is
+    /// below this × the sum of weights. Default 0.01: along a featureless corridor the axis
+    /// measures 0.002-0.008 (noisy plane normals keep it off zero), the simulated warehouse scans
+    /// 0.03-0.05 at the median (0.015-0.026 at the 5th percentile) and campus scans 0.07-0.09. The
+    /// outdoor preset uses 0.002: on KITTI's HDL-64 streets most features lie on the ground, and
+    /// the axis along the road measures 0.004-0.006 while it is well constrained.
     pub degeneracy_ratio: f64,
+    /// How the degeneracy test puts rotations in metres: `per_axis` (default), each by the
+    /// features' RMS distance from its axis, or `common`, all by their RMS distance from the
+    /// sensor. With the common lever arm the indoor scans looking down an aisle flagged their
+    /// roll (92-394 scans of a 1000-1800-scan simulated run), kept the prediction's roll rate
+    /// and rolled the map over (aisles robot 1, 151 deg). The outdoor preset keeps `common`: there
+    /// F-LOAM flags no scan either way, and A-LOAM's scan-to-scan step on the campus relies on its
+    /// flags (0.79 m ATE over 250 sweeps against 2.0 m with `per_axis`).
+    pub rotation_scale: RotationScale,
 }
 
 impl Default for SolverConfig {
@@ -181,6 +200,7 @@ impl Default for SolverConfig {
             convergence_rotation: 1e-5,
             min_matches: 30,
             degeneracy_ratio: 0.01,
+            rotation_scale: RotationScale::PerAxis,
         }
     }
 }
@@ -319,6 +339,7 @@ impl OdometryConfig {
                 edge_voxel: 0.4,
                 plane_voxel: 0.8,
                 max_edges_per_sector: 20,
+                edge_min_incidence_deg: 0.0,
                 ..FeatureConfig::default()
             },
             edge_map: MapConfig {
@@ -338,7 +359,12 @@ impl OdometryConfig {
                 max_voxels: 50_000,
             },
             keyframes: KeyframeConfig { distance: 2.0, angle_deg: 15.0, voxel: 0.2 },
-            solver: SolverConfig { degeneracy_ratio: 0.002, min_line_elevation_deg: 30.0, ..SolverConfig::default() },
+            solver: SolverConfig {
+                degeneracy_ratio: 0.002,
+                rotation_scale: RotationScale::Common,
+                min_line_elevation_deg: 30.0,
+                ..SolverConfig::default()
+            },
             loops: LoopConfig::preset(Preset::Outdoor),
             ..Self::indoor()
         }

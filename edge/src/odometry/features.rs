@@ -37,6 +37,8 @@ struct Ring {
     smoothness: Vec<f32>,
     /// Points excluded from selection: unreliable (occlusion boundary, grazing beam) or suppressed.
     blocked: Vec<bool>,
+    /// Points next to a surface seen at a grazing angle, excluded from edges only.
+    loose: Vec<bool>,
 }
 
 /// Splits a scan into rings, each ordered by measurement time, dropping points outside the range crop.
@@ -60,6 +62,7 @@ fn rings(scan: &PointCloud, ring_ids: &[u16], times: &[f32], period: f32, config
                 phases: idx.iter().map(|&i| (times[i] / period).clamp(0.0, 1.0)).collect(),
                 smoothness: vec![0.0; idx.len()],
                 blocked: vec![false; idx.len()],
+                loose: vec![false; idx.len()],
             }
         })
         .collect()
@@ -79,6 +82,9 @@ fn compute_smoothness(ring: &mut Ring, k: usize) {
 fn block_unreliable(ring: &mut Ring, k: usize, config: &FeatureConfig) {
     let p = &ring.points;
     let n = p.len();
+    // The near side of each occlusion boundary: its far-side gap is a silhouette, not a surface.
+    let mut silhouette_next = vec![false; n];
+    let mut silhouette_prev = vec![false; n];
     for i in k..n.saturating_sub(k + 1) {
         let (d0, d1) = (p[i].coords.norm(), p[i + 1].coords.norm());
         let gap = (p[i + 1] - p[i]).norm_squared();
@@ -89,6 +95,15 @@ fn block_unreliable(ring: &mut Ring, k: usize, config: &FeatureConfig) {
             let angular = (far.coords * (dn / df) - near.coords).norm() / dn;
             if angular < config.occlusion_angle {
                 let range = if far_is_next { i + 1..=(i + k + 1).min(n - 1) } else { i.saturating_sub(k)..=i };
+                // A silhouette when the background goes on behind the jump; on a surface seen at a
+                // grazing angle every step is such a jump, and the next one is as deep.
+                let beyond = if far_is_next { i + 2 } else { i.wrapping_sub(1) };
+                let background = p.get(beyond).is_some_and(|b| (b.coords.norm() - df).abs() <= config.occlusion_gap);
+                if far_is_next {
+                    silhouette_next[i] = background;
+                } else {
+                    silhouette_prev[i + 1] = background;
+                }
                 ring.blocked[range].iter_mut().for_each(|b| *b = true);
                 if !config.silhouette_edges {
                     ring.blocked[if far_is_next { i } else { i + 1 }] = true;
@@ -101,7 +116,31 @@ fn block_unreliable(ring: &mut Ring, k: usize, config: &FeatureConfig) {
         if prev > limit && next > limit {
             ring.blocked[i] = true;
         }
+        // A bend next to a surface seen at a grazing angle: the samples on that surface lie a gap
+        // apart, so where the bend is along it is known only to the gap, and the sharpest point
+        // there marks where a sample fell, not a corner. As the viewpoint moves the samples slide
+        // along the surface, and such "edges" pull the pose with them. The far side of the
+        // point's own silhouette is background, not its surface, and is not judged.
+        let min_deg = config.edge_min_incidence_deg;
+        let grazing_prev = grazing(&p[i - 1], &p[i], min_deg) && !silhouette_prev[i];
+        let grazing_next = grazing(&p[i], &p[i + 1], min_deg) && !silhouette_next[i];
+        if grazing_prev || grazing_next {
+            ring.loose[i] = true;
+        }
     }
+}
+
+/// True when two consecutive samples of a ring lie on a surface seen at less than `min_deg`
+/// from the beam: two beams α apart hit a surface at range r a gap g = r α / sin γ apart, γ the
+/// angle between beam and surface, whatever the sensor's azimuth step.
+fn grazing(a: &Point3<f32>, b: &Point3<f32>, min_deg: f32) -> bool {
+    if min_deg <= 0.0 {
+        return false;
+    }
+    let (ra, rb) = (a.coords.norm(), b.coords.norm());
+    let gap = (b - a).norm();
+    let beams = a.coords.cross(&b.coords).norm() / (ra * rb).max(f32::MIN_POSITIVE);
+    0.5 * (ra + rb) * beams < gap * min_deg.to_radians().sin()
 }
 
 /// Keeps the first feature of each voxel: an even spread at a fraction of the cost (F-LOAM
@@ -145,7 +184,7 @@ fn select(ring: &mut Ring, k: usize, config: &FeatureConfig, thinning: &mut Thin
             if edges >= config.max_edges_per_sector {
                 break;
             }
-            if ring.blocked[i] {
+            if ring.blocked[i] || ring.loose[i] {
                 continue;
             }
             if thinning.edges.insert(VoxelKey::of(&ring.points[i], thinning.inv_edge)) {
@@ -313,6 +352,54 @@ mod tests {
         for e in &f.edges {
             assert!(e.point.coords.norm() < 5.0, "occluded wall point {:?} became an edge", e.point);
         }
+    }
+
+    /// One ring (azimuth step `step` rad, starting at `offset`) over a background wall 20 m away
+    /// with a box in front: x (ahead) from 12.8 to 14.0 m, y from -1.0 to -1.8 m. Its near face
+    /// (x = 12.8) is seen head-on, its side face (y = -1.0) at 4 to 4.5 degrees from the beams.
+    fn ring_past_a_box(step: f32, offset: f32) -> PointCloud {
+        let n = (std::f32::consts::TAU / step) as usize;
+        let mut c = PointCloud::with_capacity(n, cloud::Channels { intensity: false, ring: true, time: true });
+        for i in 0..n {
+            let a = offset + i as f32 * step - std::f32::consts::PI;
+            let d = nalgebra::Vector3::new(a.cos(), a.sin(), 0.0);
+            // The box's faces facing the sensor, then the wall.
+            let near = (d.x > 1e-6).then(|| 12.8 / d.x).filter(|t| (-1.8..=-1.0).contains(&(d.y * t)));
+            let side = (d.y < -1e-6).then(|| -1.0 / d.y).filter(|t| (12.8..=14.0).contains(&(d.x * t)));
+            let t = near.into_iter().chain(side).fold(20.0f32, f32::min);
+            c.points.push(Point3::from(d * t));
+            c.ring.as_mut().unwrap().push(0);
+            c.time.as_mut().unwrap().push(i as f32 / n as f32 * 0.1);
+        }
+        c
+    }
+
+    #[test]
+    fn a_face_seen_at_a_grazing_angle_gives_no_edge_where_a_sample_fell() {
+        // The side face's samples lie ~0.6 m apart at the VLP-16's 0.2 degree step: its sharpest
+        // point marks where a sample fell, not a corner. Over ten phases of the azimuth grid no
+        // edge may lie on that face farther from its corners than a step of the near face (4.5
+        // cm at 12.8 m); without the incidence test some phases put one there.
+        let step = 0.2f32.to_radians();
+        let on_the_side_face = |config: &FeatureConfig| {
+            let (mut on_face, mut edges) = (0, 0);
+            for k in 0..10 {
+                let f = extract(&ring_past_a_box(step, k as f32 * step / 10.0), 0.1, config).unwrap();
+                for e in f.edges.iter().filter(|e| e.point.coords.norm() < 15.0) {
+                    edges += 1;
+                    let inside = (12.8 + 0.045..14.0 - 0.045).contains(&e.point.x);
+                    on_face += usize::from((e.point.y + 1.0).abs() < 1e-3 && inside);
+                }
+            }
+            (on_face, edges)
+        };
+        let config = FeatureConfig { edge_voxel: 1e-4, ..FeatureConfig::default() };
+        let (on_face, edges) = on_the_side_face(&config);
+        assert_eq!(on_face, 0, "{on_face} of {edges} edges on the grazing face");
+        // The near face's outer corner, seen against the wall, stays an edge in every phase.
+        assert!(edges >= 10, "{edges} edges in 10 phases");
+        let (without, _) = on_the_side_face(&FeatureConfig { edge_min_incidence_deg: 0.0, ..config });
+        assert!(without > 0, "the case does not exercise the test");
     }
 
     #[test]

@@ -389,7 +389,7 @@ pub fn estimate(
             let normal = normal_equations(&edge_res, &plane_res, &pose, config.huber);
             // Where the scan does not constrain the pose, the motion prior is kept instead of drifting.
             let Remapped { delta, degenerate, min_eigen_ratio: min_ratio } =
-                solve_remapped(&normal, config.degeneracy_ratio);
+                solve_remapped(&normal, config.degeneracy_ratio, config.rotation_scale);
             pose = cloud::se3::update(&pose, &delta);
             out = Estimate {
                 pose,
