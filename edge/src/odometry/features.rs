@@ -82,10 +82,13 @@ fn compute_smoothness(ring: &mut Ring, k: usize) {
 fn block_unreliable(ring: &mut Ring, k: usize, config: &FeatureConfig) {
     let p = &ring.points;
     let n = p.len();
-    // The near side of each occlusion boundary: its far-side gap is a silhouette, not a surface.
-    let mut silhouette_next = vec![false; n];
-    let mut silhouette_prev = vec![false; n];
+    let sin_min = config.edge_min_incidence_deg.to_radians().sin();
+    // Whether the pair (i - 1, i) is a grazing surface, and whether it is point i's own silhouette
+    // (the far-side gap of an occlusion boundary whose near side is i), carried from the last pair.
+    let mut grazing_prev = k > 0 && k < n && grazing(&p[k - 1], &p[k], sin_min);
+    let mut silhouette_prev = false;
     for i in k..n.saturating_sub(k + 1) {
+        let (mut silhouette_next, mut next_silhouette_prev) = (false, false);
         let (d0, d1) = (p[i].coords.norm(), p[i + 1].coords.norm());
         let gap = (p[i + 1] - p[i]).norm_squared();
         if gap > config.occlusion_gap * config.occlusion_gap {
@@ -100,9 +103,9 @@ fn block_unreliable(ring: &mut Ring, k: usize, config: &FeatureConfig) {
                 let beyond = if far_is_next { i + 2 } else { i.wrapping_sub(1) };
                 let background = p.get(beyond).is_some_and(|b| (b.coords.norm() - df).abs() <= config.occlusion_gap);
                 if far_is_next {
-                    silhouette_next[i] = background;
+                    silhouette_next = background;
                 } else {
-                    silhouette_prev[i + 1] = background;
+                    next_silhouette_prev = background;
                 }
                 ring.blocked[range].iter_mut().for_each(|b| *b = true);
                 if !config.silhouette_edges {
@@ -121,26 +124,25 @@ fn block_unreliable(ring: &mut Ring, k: usize, config: &FeatureConfig) {
         // there marks where a sample fell, not a corner. As the viewpoint moves the samples slide
         // along the surface, and such "edges" pull the pose with them. The far side of the
         // point's own silhouette is background, not its surface, and is not judged.
-        let min_deg = config.edge_min_incidence_deg;
-        let grazing_prev = grazing(&p[i - 1], &p[i], min_deg) && !silhouette_prev[i];
-        let grazing_next = grazing(&p[i], &p[i + 1], min_deg) && !silhouette_next[i];
-        if grazing_prev || grazing_next {
+        let grazing_next = grazing(&p[i], &p[i + 1], sin_min);
+        if (grazing_prev && !silhouette_prev) || (grazing_next && !silhouette_next) {
             ring.loose[i] = true;
         }
+        (grazing_prev, silhouette_prev) = (grazing_next, next_silhouette_prev);
     }
 }
 
-/// True when two consecutive samples of a ring lie on a surface seen at less than `min_deg`
-/// from the beam: two beams α apart hit a surface at range r a gap g = r α / sin γ apart, γ the
-/// angle between beam and surface, whatever the sensor's azimuth step.
-fn grazing(a: &Point3<f32>, b: &Point3<f32>, min_deg: f32) -> bool {
-    if min_deg <= 0.0 {
+/// True when two consecutive samples of a ring lie on a surface seen at an angle γ from the beam
+/// with sin γ below `sin_min`: two beams α apart hit a surface at range r a gap g = r α / sin γ
+/// apart, whatever the sensor's azimuth step.
+fn grazing(a: &Point3<f32>, b: &Point3<f32>, sin_min: f32) -> bool {
+    if sin_min <= 0.0 {
         return false;
     }
     let (ra, rb) = (a.coords.norm(), b.coords.norm());
     let gap = (b - a).norm();
     let beams = a.coords.cross(&b.coords).norm() / (ra * rb).max(f32::MIN_POSITIVE);
-    0.5 * (ra + rb) * beams < gap * min_deg.to_radians().sin()
+    0.5 * (ra + rb) * beams < gap * sin_min
 }
 
 /// Keeps the first feature of each voxel: an even spread at a fraction of the cost (F-LOAM
