@@ -96,6 +96,11 @@ pub struct LeverArm {
 }
 
 impl LeverArm {
+    /// The RMS distance of the points from the body origin (m): one lever arm for every rotation.
+    pub fn from_origin(&self) -> f64 {
+        (self.squares.sum() / self.weight_sum.max(1e-12)).sqrt()
+    }
+
     /// The RMS distance of the points from each body axis (m): how far a rotation about that axis
     /// moves them per radian.
     pub fn about_axes(&self) -> Vector3<f64> {

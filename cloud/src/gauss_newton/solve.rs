@@ -46,7 +46,7 @@ pub struct Remapped {
 pub fn solve_remapped(eq: &NormalEquations<LeverArm>, degeneracy_ratio: f64, rotations: RotationScale) -> Remapped {
     let sum = eq.sums.weight_sum.max(1e-12);
     let lever = match rotations {
-        RotationScale::Common => Vector3::repeat((eq.sums.squares.sum() / sum).sqrt()),
+        RotationScale::Common => Vector3::repeat(eq.sums.from_origin()),
         RotationScale::PerAxis => eq.sums.about_axes(),
     }
     .map(|l| l.max(1e-3));

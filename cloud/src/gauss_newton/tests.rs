@@ -181,7 +181,7 @@ fn a_roll_measured_by_near_surfaces_is_not_left_to_the_prior_along_an_aisle() {
     let left = (update(&t, &common.delta).inverse() * truth).rotation.angle().to_degrees();
     assert!((left - 0.5).abs() < 0.01, "{left} deg of roll left");
     // The scene is what the test says: overall the lever arm is long, about the aisle's axis short.
-    let overall = (eq.sums.squares.sum() / eq.sums.weight_sum).sqrt();
+    let overall = eq.sums.from_origin();
     let axes = eq.sums.about_axes();
     assert!(overall > 10.0 && axes.x < 2.0 && axes.y > 10.0 && axes.z > 10.0, "{overall} {axes}");
 }
