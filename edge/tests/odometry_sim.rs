@@ -12,7 +12,20 @@ fn run(frames: usize, deskew: bool) -> (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>
 }
 
 fn run_with(frames: usize, config: OdometryConfig) -> (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>) {
-    let sim = Simulator::new(Scenario::by_name("warehouse-small").unwrap(), 0, SimConfig::default()).unwrap();
+    run_robot("warehouse-small", 1, 0, frames, config)
+}
+
+/// The first `frames` sweeps of `scenario`'s robot `robot` (1-based) with noise seed `seed`;
+/// returns (truth, estimate), both from the first sweep's pose.
+fn run_robot(
+    scenario: &str,
+    robot: usize,
+    seed: u64,
+    frames: usize,
+    config: OdometryConfig,
+) -> (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>) {
+    let sim_config = SimConfig { seed, ..SimConfig::default() };
+    let sim = Simulator::new(Scenario::by_name(scenario).unwrap(), robot - 1, sim_config).unwrap();
     let mut odometry = Odometry::new(config).unwrap();
     let first = sim.ground_truth(0).inverse();
     (0..frames)
@@ -56,18 +69,10 @@ fn repeating_stage_one_where_the_turn_rate_changes_beats_one_pass() {
 /// The mean angle (deg) between the estimated and the true vertical over the first `frames`
 /// sweeps of `scenario`'s robot `robot` (1-based), noise seed `seed`, with `config`.
 fn mean_tilt_deg(scenario: &str, robot: usize, seed: u64, frames: usize, config: OdometryConfig) -> f64 {
-    let sim_config = SimConfig { seed, ..SimConfig::default() };
-    let sim = Simulator::new(Scenario::by_name(scenario).unwrap(), robot - 1, sim_config).unwrap();
-    let mut odometry = Odometry::new(config).unwrap();
-    let first = sim.ground_truth(0).inverse();
-    let total: f64 = (0..frames)
-        .map(|f| {
-            let scan = sim.scan(f);
-            let truth = first * scan.ground_truth;
-            let pose = odometry.register(&scan.cloud, scan.stamp).unwrap().pose;
-            (pose.rotation * nalgebra::Vector3::z()).angle(&(truth.rotation * nalgebra::Vector3::z())).to_degrees()
-        })
-        .sum();
+    let (truth, estimate) = run_robot(scenario, robot, seed, frames, config);
+    let up = nalgebra::Vector3::z();
+    let total: f64 =
+        truth.iter().zip(&estimate).map(|(t, e)| (e.rotation * up).angle(&(t.rotation * up)).to_degrees()).sum();
     total / frames as f64
 }
 

@@ -543,10 +543,7 @@ impl Odometry {
     fn estimate(&self, raw: &Features, predicted: Isometry3<f64>) -> Fitted {
         let mut searches = solver::Neighbourhoods::new(raw.edges.len(), raw.planes.len());
         let mut solve = |motion: &SweepMotion, from: Isometry3<f64>| {
-            let edges = deskew::compensate(&raw.edges, motion);
-            let planes = deskew::compensate(&raw.planes, motion);
-            let (edge_map, plane_map) = (&self.edge_map, &self.plane_map);
-            solver::estimate(&edges, &planes, edge_map, plane_map, from, &self.config.solver, &mut searches)
+            self.fit(raw, motion, from, &self.config.solver, &mut searches)
         };
         // Against the first scan, uncompensated in the map, the second is fitted uncompensated
         // too: alike distortions cancel, where compensating one side only turns the fit further
@@ -569,6 +566,20 @@ impl Odometry {
         Fitted { estimate, motion, searches }
     }
 
+    /// The features compensated with `motion`, fitted to the maps from `from` (eq. 4).
+    fn fit(
+        &self,
+        raw: &Features,
+        motion: &SweepMotion,
+        from: Isometry3<f64>,
+        config: &SolverConfig,
+        searches: &mut solver::Neighbourhoods,
+    ) -> solver::Estimate {
+        let edges = deskew::compensate(&raw.edges, motion);
+        let planes = deskew::compensate(&raw.planes, motion);
+        solver::estimate(&edges, &planes, &self.edge_map, &self.plane_map, from, config, searches)
+    }
+
     /// The winning fit fitted once more from its own pose under a narrow kernel
     /// ([`SolverConfig::polish_huber`]): the wide kernel finds the basin, the narrow one then
     /// keeps neighbourhoods that fit their surface a few centimetres off (girders, box edges, a
@@ -586,17 +597,7 @@ impl Odometry {
             return None;
         }
         let config = SolverConfig { huber, ..self.config.solver.clone() };
-        let edges = deskew::compensate(&raw.edges, &located.motion);
-        let planes = deskew::compensate(&raw.planes, &located.motion);
-        let polished = solver::estimate(
-            &edges,
-            &planes,
-            &self.edge_map,
-            &self.plane_map,
-            located.estimate.pose,
-            &config,
-            &mut located.searches,
-        );
+        let polished = self.fit(raw, &located.motion, located.estimate.pose, &config, &mut located.searches);
         let moved = motion_model::displacement(&(located.estimate.pose.inverse() * polished.pose), SAME_FIT_RANGE_M);
         (polished.degenerate_directions == 0 && moved <= POLISH_MAX_M).then_some(polished)
     }
