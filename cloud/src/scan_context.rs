@@ -144,6 +144,14 @@ pub struct Comparable {
 }
 
 impl Comparable {
+    /// Bytes it holds: its keys, unit columns and flags.
+    pub fn bytes(&self) -> usize {
+        std::mem::size_of_val(&self.ring_key)
+            + std::mem::size_of_val(self.sector_key.as_slice())
+            + std::mem::size_of_val(self.unit.as_slice())
+            + std::mem::size_of_val(self.seen.as_slice())
+    }
+
     /// The layout of `context`.
     pub fn new(context: &ScanContext) -> Self {
         let (rings, sectors) = (context.rings, context.sectors);

@@ -136,17 +136,26 @@ async fn every_keyframe_arrives_with_the_pose_of_its_scan() {
     running.collect_into(n, &mut got).await;
     assert_eq!(got.keys().copied().collect::<Vec<_>>(), (0..n).collect::<Vec<_>>());
     assert_eq!(got.values().map(|p| p.len() as u64).sum::<u64>(), summary.published_bytes);
+    // What the node counts as held: every keyframe it made, in the store, none left on the way.
+    let held = summary.held;
+    assert_eq!((held.made, held.store, held.in_flight), (n, summary.published_bytes, 0), "{held:?}");
+    let mut loop_bound = 0;
     for payload in got.values() {
         let msg = proto::Keyframe::decode(payload.as_slice()).unwrap();
         assert_eq!((msg.fleet.as_str(), msg.robot), ("fleet-a", 1));
         let (pose, cloud) = wire::keyframe_cloud(&msg).unwrap();
         assert!(!cloud.is_empty(), "keyframe {} has no points", msg.seq);
         assert_eq!(msg.cloud.as_ref().unwrap().points, cloud.len() as u64);
+        let context = msg.scan_context.as_ref().expect("a descriptor");
+        // The loop closure's share: at most the positions and the descriptor (keys, cells and a flag each).
+        loop_bound +=
+            12 * cloud.len() as u64 + context.cells.len() as u64 * 5 + 4 * u64::from(context.rings + context.sectors);
         let stamp = msg.stamp.unwrap().as_secs_f64();
         let frame = summary.stamps.iter().position(|s| (s - stamp).abs() < 1e-6).expect("a scan with its stamp");
         assert_eq!(pose, summary.poses[frame], "keyframe {} vs scan {frame}", msg.seq);
     }
     assert!(summary.ground_truth.iter().all(Option::is_some));
+    assert!(held.loops > 0 && held.loops <= loop_bound, "{held:?}: the loop closure holds more than {loop_bound}");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -194,6 +203,8 @@ async fn a_small_store_evicts_the_oldest_keyframes() {
     assert_eq!(replied.into_iter().collect::<Vec<_>>(), vec![(n - 1, published[&(n - 1)].clone())]);
     let summary = running.shut_down().await;
     assert_eq!(summary.keyframes, n, "the stream was silent for {QUIET:?} before the source ended");
+    // It holds what it keeps: the newest keyframe alone.
+    assert_eq!((summary.held.store, summary.held.in_flight), (published[&(n - 1)].len() as u64, 0));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -357,13 +357,140 @@ pub fn nft_counters(listing: &str) -> Vec<(u64, u64)> {
         .collect()
 }
 
-/// The newest `robot R: S scans, K keyframes` progress line in an edge's log: (S, K).
+/// The newest `robot R: S scans, K keyframes (...)` progress line in an edge's log: (S, K).
 pub fn edge_progress(log: &str, robot: u32) -> Option<(u64, u64)> {
+    edge_reports(log, robot).last().map(|r| (r.scans, r.published))
+}
+
+/// One progress line of an edge: what it had done and what it held (`edge::node::Held`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EdgeReport {
+    /// Scans registered.
+    pub scans: u64,
+    /// Keyframes published.
+    pub published: u64,
+    /// Keyframes made (published or on their way).
+    pub made: u64,
+    /// Bytes of encoded keyframes held: in the backfill store and on their way to it.
+    pub keyframe_bytes: u64,
+    /// Bytes the loop closure keeps of the keyframes.
+    pub loop_bytes: u64,
+}
+
+/// Every progress line of robot `robot` in an edge's log, in order.
+pub fn edge_reports(log: &str, robot: u32) -> Vec<EdgeReport> {
     let prefix = format!("robot {robot}: ");
-    log.lines().rev().find_map(|line| {
-        let rest = &line[line.find(&prefix)? + prefix.len()..];
-        let (scans, rest) = rest.split_once(" scans, ")?;
-        let keyframes = rest.strip_suffix(" keyframes")?;
-        Some((scans.trim().parse().ok()?, keyframes.trim().parse().ok()?))
-    })
+    let number = |s: &str| s.trim().parse::<u64>().ok();
+    log.lines()
+        .filter_map(|line| {
+            let rest = &line[line.find(&prefix)? + prefix.len()..];
+            let (scans, rest) = rest.split_once(" scans, ")?;
+            let (published, rest) = rest.split_once(" keyframes (")?;
+            let (made, rest) = rest.split_once(" keyframes made, holding ")?;
+            let (keyframe_bytes, rest) = rest.split_once(" bytes of them")?;
+            let (_, rest) = rest.split_once(" and ")?;
+            let loop_bytes = rest.strip_suffix(" bytes for loops)")?;
+            Some(EdgeReport {
+                scans: number(scans)?,
+                published: number(published)?,
+                made: number(made)?,
+                keyframe_bytes: number(keyframe_bytes)?,
+                loop_bytes: number(loop_bytes)?,
+            })
+        })
+        .collect()
+}
+
+/// One keyframe as a robot's store holds it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Stored {
+    /// Sequence number.
+    pub seq: u64,
+    /// Its encoded message.
+    pub bytes: u64,
+    /// Points of its cloud.
+    pub points: u64,
+}
+
+/// Checks that an edge's holdings grew, from `from` to each of `later`, by no more than what the
+/// keyframes it made in between explain: their encoded messages (exactly what the store and the
+/// channel to it hold of them) and, for the loop closure, their clouds' positions (an upper bound:
+/// it keeps them thinned) and a descriptor of `descriptor_bytes` each. `stored` holds every keyframe
+/// the edge made, in sequence order. A report that fails says which and by how much.
+pub fn growth_explained(
+    from: &EdgeReport,
+    later: &[EdgeReport],
+    stored: &[Stored],
+    descriptor_bytes: u64,
+) -> Result<(), String> {
+    for r in later {
+        let made: Vec<&Stored> = stored.iter().filter(|k| (from.made..r.made).contains(&k.seq)).collect();
+        if made.len() as u64 != r.made.saturating_sub(from.made) {
+            return Err(format!("{r:?}: keyframes {}..{} are not all in the store", from.made, r.made));
+        }
+        let encoded: u64 = made.iter().map(|k| k.bytes).sum();
+        let kept: u64 = made.iter().map(|k| 12 * k.points + descriptor_bytes).sum();
+        let grown = r.keyframe_bytes.saturating_sub(from.keyframe_bytes);
+        if grown > encoded {
+            return Err(format!(
+                "{r:?}: holds {grown} more bytes of keyframes than at {from:?}, while the {} made in between \
+                 encode to {encoded}",
+                made.len()
+            ));
+        }
+        let grown = r.loop_bytes.saturating_sub(from.loop_bytes);
+        if grown > kept {
+            return Err(format!(
+                "{r:?}: the loop closure holds {grown} more bytes than at {from:?}, more than the {kept} of the {} \
+                 keyframes made in between",
+                made.len()
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Keyframes of 1000 bytes and 400 points; reports after each fifth.
+    fn run(keyframe_copies: u64) -> (Vec<EdgeReport>, Vec<Stored>) {
+        let stored: Vec<Stored> = (0..20).map(|seq| Stored { seq, bytes: 1000, points: 400 }).collect();
+        let reports = (0..=4)
+            .map(|i| EdgeReport {
+                scans: 50 * i,
+                published: 5 * i,
+                made: 5 * i,
+                keyframe_bytes: keyframe_copies * 5000 * i,
+                loop_bytes: 5 * i * (100 * 12 + 64),
+            })
+            .collect();
+        (reports, stored)
+    }
+
+    #[test]
+    fn an_edge_that_holds_twice_what_it_made_is_caught() {
+        let (reports, stored) = run(1);
+        assert_eq!(growth_explained(&reports[1], &reports[2..], &stored, 64), Ok(()));
+        let (reports, stored) = run(2);
+        let err = growth_explained(&reports[1], &reports[2..], &stored, 64).unwrap_err();
+        assert!(err.contains("holds 10000 more bytes of keyframes") && err.contains("encode to 5000"), "{err}");
+        // Keyframes the store does not hold cannot explain anything.
+        let (reports, mut stored) = run(1);
+        stored.retain(|k| k.seq != 12);
+        assert!(growth_explained(&reports[1], &reports[2..], &stored, 64).is_err());
+    }
+
+    #[test]
+    fn progress_lines_are_read_as_the_edge_writes_them() {
+        let held = edge::node::Held { made: 27, store: 1000, in_flight: 234, loops: 5678 };
+        let log = format!(
+            "2026-01-01T00:00:00Z  INFO edge::node: robot 3: 200 scans, 25 keyframes ({held})\n\
+             robot 3: source done after 200 scans\nrobot 4: 1 scans, 0 keyframes ({held})\n"
+        );
+        let expected = EdgeReport { scans: 200, published: 25, made: 27, keyframe_bytes: 1234, loop_bytes: 5678 };
+        assert_eq!(edge_reports(&log, 3), vec![expected]);
+        assert_eq!(edge_progress(&log, 3), Some((200, 25)));
+    }
 }

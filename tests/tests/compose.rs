@@ -210,7 +210,7 @@ fn the_compose_fleet_merges_survives_a_killed_station_and_stops_cleanly() {
     });
     println!("robots went on: revision {}, {} keyframes", later.revision(), later.keyframes());
 
-    // SIGTERM reaches every process: `docker stop` returns well before its 20 s kill timeout. The
+    // SIGTERM reaches every process: each exits 0 (below), not killed at the 20 s timeout. The
     // robots first: each says what it made as it exits, and the station must hold all of it (the
     // pause outlived their zenoh leases, the station was killed: what it missed, it fetched).
     let stopping = Instant::now();
@@ -229,9 +229,8 @@ fn the_compose_fleet_merges_survives_a_killed_station_and_stops_cleanly() {
         robots_took.as_secs_f64(),
         rest_took.as_secs_f64()
     );
-    for took in [robots_took, rest_took] {
-        assert!(took < Duration::from_secs(15), "docker stop took {took:?}: a process ignores SIGTERM");
-    }
+    // A process that ignored SIGTERM would be killed at the 20 s timeout and exit 137: its exit code
+    // tells, where the time it took would depend on the machine's load.
     for service in ["station", "edge1", "edge2"] {
         assert_eq!(fleet.inspect(service, "{{.State.ExitCode}}"), "0", "{service} did not exit cleanly on SIGTERM");
     }

@@ -133,6 +133,13 @@ pub struct Place {
     cloud: PointCloud,
 }
 
+impl Place {
+    /// What it holds, bytes: its thinned cloud's positions and its descriptor.
+    fn bytes(&self) -> u64 {
+        (std::mem::size_of_val(self.cloud.points.as_slice()) + self.context.bytes()) as u64
+    }
+}
+
 /// A loop between keyframes `a` (older) and `b`, verified geometrically.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Loop {
@@ -231,6 +238,8 @@ pub struct LoopCloser {
     gaussians: GaussianCache,
     /// The last keyframe that verified a loop.
     last_loop: Option<usize>,
+    /// What `places` hold, bytes.
+    held_bytes: u64,
 }
 
 impl LoopCloser {
@@ -247,7 +256,14 @@ impl LoopCloser {
             graph: KeyframeGraph::default(),
             gaussians: GaussianCache::default(),
             last_loop: None,
+            held_bytes: 0,
         }
+    }
+
+    /// What it keeps of the keyframes it was given, bytes: each one's thinned cloud and descriptor
+    /// (the graph's poses and the bounded cache of fitted clouds apart).
+    pub fn held_bytes(&self) -> u64 {
+        self.held_bytes
     }
 
     /// Adds the next keyframe (keyframes come in sequence order, from 0): describes it, looks for
@@ -256,6 +272,7 @@ impl LoopCloser {
         let watch = Stopwatch::start();
         let (place, context) = self.describe(keyframe);
         self.graph.extend(self.places.last().map(|p| &p.odometry), &place.odometry);
+        self.held_bytes += place.bytes();
         self.places.push(place);
         self.index_aged_places();
         let b = self.places.len() - 1;

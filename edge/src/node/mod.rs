@@ -36,7 +36,7 @@ use crate::odometry::{Odometry, OdometryConfig, OdometryError};
 use crate::recording::RecordingOptions;
 use crate::source::{Source, SourceError, SourceSpec};
 use store::Store;
-use worker::{EncodedKeyframe, EncodedPoseGraph, Registered, Worker};
+use worker::{EncodedKeyframe, EncodedPoseGraph, Made, Registered, Worker};
 
 /// Default budget of the keyframe store: 256 MiB of encoded keyframes.
 pub const DEFAULT_STORE_BYTES: usize = 256 << 20;
@@ -149,6 +149,40 @@ pub struct NodeSummary {
     pub optimised_keyframes: Vec<Isometry3<f64>>,
     /// Wall time of the odometry on each scan, milliseconds (loop closure and publishing apart).
     pub odometry_ms: Vec<f64>,
+    /// What the node held of its keyframes when it stopped.
+    pub held: Held,
+}
+
+/// What a node holds of the keyframes it made, bytes, by its own count of its buffers: exact and
+/// deterministic, where the process's resident memory also moves with the allocator. Everything
+/// else the node keeps is bounded whatever the link does (the channel's scan count, zenoh's queues,
+/// the newest pose graph), so these are what may grow while the station cannot be reached.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Held {
+    /// Keyframes the odometry thread has made and encoded so far.
+    pub made: u64,
+    /// Encoded keyframes in the backfill store.
+    pub store: u64,
+    /// Encoded keyframes made but not yet taken by the publisher.
+    pub in_flight: u64,
+    /// What the loop closure keeps of each keyframe: its thinned cloud and its descriptor.
+    pub loops: u64,
+}
+
+impl std::fmt::Display for Held {
+    /// `robot R: S scans, K keyframes (` is the progress line's start; this is its rest, read by the
+    /// multi-host test: keep the words.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} keyframes made, holding {} bytes of them (store {}, in flight {}) and {} bytes for loops",
+            self.made,
+            self.store + self.in_flight,
+            self.store,
+            self.in_flight,
+            self.loops
+        )
+    }
 }
 
 impl NodeSummary {
@@ -235,12 +269,15 @@ pub async fn run(
         rate: config.rate,
         loops: config.loops.then(|| LoopCloser::new(config.odometry.loops.clone())),
         scan_context: config.odometry.loops.scan_context.clone(),
+        made: Arc::new(Mutex::new(Made::default())),
     };
     let links = Links::declare(session, &config).await?;
+    let made = worker.made.clone();
     let (tx, rx) = mpsc::channel(CHANNEL_SCANS);
     let thread = tokio::task::spawn_blocking(move || worker.run(tx));
-    let mut outbox = Outbox::new(&links, config.robot);
+    let mut outbox = Outbox::new(&links, config.robot, made);
     let pumped = pump(&mut outbox, rx, thread, &config, shutdown).await;
+    outbox.summary.held = outbox.held();
     let summary = outbox.summary;
     links.undeclare().await;
     pumped?;
@@ -281,6 +318,7 @@ async fn pump(
                 Some(scan) => outbox.send(scan).await?,
                 None => if let Some(thread) = thread.take() {
                     finish(thread).await?;
+                    outbox.progress();
                     info!("robot {}: source done after {} scans", outbox.robot, outbox.summary.frames);
                     if let Some(SourceEnd(tell)) = &config.on_source_end && !stopping {
                         tell(&outbox.summary);
@@ -392,11 +430,30 @@ struct Outbox<'l> {
     robot: u32,
     matched: bool,
     summary: NodeSummary,
+    /// The worker's side of the count of what is held.
+    made: Arc<Mutex<Made>>,
 }
 
 impl<'l> Outbox<'l> {
-    fn new(links: &'l Links<'l>, robot: u32) -> Self {
-        Outbox { links, robot, matched: false, summary: NodeSummary::default() }
+    fn new(links: &'l Links<'l>, robot: u32, made: Arc<Mutex<Made>>) -> Self {
+        Outbox { links, robot, matched: false, summary: NodeSummary::default(), made }
+    }
+
+    /// What the node holds now: the worker's count and the store's, read together from this task,
+    /// the only one that moves a keyframe from the channel to the store.
+    fn held(&self) -> Held {
+        let made = *self.made.lock().unwrap_or_else(PoisonError::into_inner);
+        let store = self.links.store.lock().unwrap_or_else(PoisonError::into_inner).bytes() as u64;
+        Held { made: made.keyframes, store, in_flight: made.in_flight, loops: made.loops }
+    }
+
+    /// Logs the progress line and keeps what is held in the summary.
+    fn progress(&mut self) {
+        self.summary.held = self.held();
+        info!(
+            "robot {}: {} scans, {} keyframes ({})",
+            self.robot, self.summary.frames, self.summary.keyframes, self.summary.held
+        );
     }
 
     /// Records one registered scan and publishes its keyframe, if any.
@@ -417,7 +474,7 @@ impl<'l> Outbox<'l> {
             self.publish_posegraph(update).await?;
         }
         if self.summary.frames.is_multiple_of(PROGRESS_EVERY) {
-            info!("robot {}: {} scans, {} keyframes", self.robot, self.summary.frames, self.summary.keyframes);
+            self.progress();
         }
         Ok(())
     }
@@ -430,6 +487,7 @@ impl<'l> Outbox<'l> {
         }
         let payload = ZBytes::from(kf.payload);
         let bytes = payload.len() as u64;
+        self.made.lock().unwrap_or_else(PoisonError::into_inner).in_flight -= bytes;
         let evicted = self.links.store.lock().unwrap_or_else(PoisonError::into_inner).insert(kf.seq, payload.clone());
         if let Some(range) = evicted {
             warn!(

@@ -37,6 +37,11 @@ impl Store {
         evicted
     }
 
+    /// Bytes of the payloads held.
+    pub(crate) fn bytes(&self) -> usize {
+        self.bytes
+    }
+
     /// The held keyframes a request asks for, in sequence order, each once; the first `limit` of
     /// them when it sets one.
     pub(crate) fn select(&self, request: &KeyframeRequest) -> Vec<(u64, ZBytes)> {
@@ -92,6 +97,7 @@ mod tests {
         assert_eq!(store.insert(2, payload(10)), Some(0..=0));
         assert_eq!(store.insert(3, payload(20)), Some(1..=2));
         assert_eq!(store.insert(4, payload(40)), Some(3..=3));
+        assert_eq!(store.bytes(), 40);
         assert_eq!(seqs(&store, KeyframeRequest { seqs: vec![0, 1, 2, 3], from_seq: Some(0), limit: None }), vec![4]);
     }
 }
