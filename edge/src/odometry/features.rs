@@ -6,28 +6,7 @@ use nalgebra::Point3;
 use rustc_hash::FxHashSet;
 
 use super::FeatureConfig;
-
-/// A feature point, still in the sensor frame at its own measurement time.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Feature {
-    /// Position in the sensor frame at the point's measurement time.
-    pub point: Point3<f32>,
-    /// Fraction of the sweep at which the point was measured, 0 = sweep start, 1 = sweep end.
-    pub phase: f32,
-    /// Local smoothness σ (eq. 1).
-    pub smoothness: f32,
-    /// The ring (beam) that measured it.
-    pub ring: u16,
-}
-
-/// The features of one scan.
-#[derive(Clone, Debug, Default)]
-pub struct Features {
-    /// Sharp points, matched to lines of the edge map.
-    pub edges: Vec<Feature>,
-    /// Flat points, matched to planes of the plane map.
-    pub planes: Vec<Feature>,
-}
+pub use super::feature_points::{Feature, Features};
 
 /// One ring's points in firing order, with what feature selection needs per point.
 struct Ring {

@@ -31,6 +31,7 @@ pub mod aloam;
 pub mod coarse;
 pub mod config;
 pub mod deskew;
+pub mod feature_points;
 pub mod features;
 pub mod health;
 pub mod local_map;

@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
 use super::FeatureConfig;
-use super::features::{Feature, Features};
+use super::feature_points::{Feature, Features};
 
 /// Fewest points a voxel needs for its shape to mean anything.
 const MIN_POINTS: usize = 6;
