@@ -23,7 +23,9 @@ EMR_UID=10001
 if [ -z "${EMR_BIN_DIR:-}" ]; then
     echo "building emr-edge and emr-station (release)" >&2
     cargo build --release --locked -p edge -p station --bins
-    EMR_BIN_DIR=target/release
+    # Where cargo put them: CARGO_TARGET_DIR or the build configuration may move target/.
+    target=$(cargo metadata --format-version 1 --no-deps | sed -n 's/.*"target_directory":"\([^"]*\)".*/\1/p')
+    EMR_BIN_DIR=${target:-target}/release
 fi
 zenohd_bin=${EMR_ZENOHD:-$(bash deploy/zenohd.sh)}
 zenoh_version=$(awk '/^name = "zenoh"$/ { getline; gsub(/[^0-9.]/, ""); print; exit }' Cargo.lock)
