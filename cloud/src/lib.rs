@@ -1,8 +1,7 @@
 //! Point clouds shared by the edge and the station.
 //!
 //! Everything here is pure computation on in-memory data, except [`formats`], whose parsers work on
-//! byte slices and whose thin `read_*`/`write_*` wrappers are the only functions that touch files
-//! (the benchmarks, [`registration::bench`] and [`global::bench`], read their data through them).
+//! byte slices and whose thin `read_*`/`write_*` wrappers are the only functions that touch files.
 
 pub mod alignment;
 pub mod changed;
@@ -21,6 +20,7 @@ pub mod preset;
 pub mod registration;
 pub mod scan_context;
 pub mod se3;
+pub mod stats;
 pub mod stopwatch;
 pub mod trajectory;
 pub mod visibility;

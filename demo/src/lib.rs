@@ -6,16 +6,10 @@
 //! are done and the station has published a global map built from every keyframe, the demo stops
 //! everything and writes its results, judged against the simulator's ground truth.
 //!
-//! [`report`] runs the paper's four systems (MR/EMR × A-LOAM/F-LOAM) through the demo and tabulates
-//! them (`emr-demo report`).
-//!
-//! [`fleet_load`] puts a station under a simulated fleet's load the same way (`emr-demo bench load`).
-//! This crate is the one place where robot code and station code meet.
+//! This crate is where robot code and station code meet in one process; the `eval` crate runs it to
+//! compare the paper's four systems.
 
 mod figures;
-pub mod fleet_joint;
-pub mod fleet_load;
-pub mod report;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

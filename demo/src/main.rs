@@ -7,11 +7,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
-use demo::fleet_load::{self, LoadConfig};
-use demo::report::{self, ReportConfig};
 use demo::{DemoConfig, DemoReport};
 use edge::node::Rate;
-use station::joint::JointConfig;
 
 /// The whole EMR-FLOAM system on this machine, no set-up.
 ///
@@ -33,29 +30,6 @@ struct Cli {
 enum Command {
     /// Run the demo (what `emr-demo` with no command does).
     Run(RunArgs),
-    /// Benchmarks.
-    #[command(subcommand)]
-    Bench(Bench),
-    /// The paper's four systems side by side: MR-ALOAM, MR-FLOAM (no loops), EMR-ALOAM, EMR-FLOAM
-    /// (loops), each run through the demo on the simulated scenarios. Writes OUT/report.md (ATE per
-    /// robot, ms per scan, map points and bytes, merge time, loops), OUT/report.json, and each
-    /// run's demo results in OUT/SCENARIO/SYSTEM. Progress on stderr. (The issue asked for
-    /// `emr-station report`; it lives here because only the demo links robot and station code.)
-    Report(ReportArgs),
-}
-
-/// The report's flags.
-#[derive(Args, Debug)]
-struct ReportArgs {
-    /// Output directory.
-    #[arg(long, default_value = "out/report")]
-    out: PathBuf,
-    /// Scenario to run (repeatable) [default: warehouse-small, warehouse-large, campus, aisles].
-    #[arg(long = "scenario")]
-    scenarios: Vec<String>,
-    /// Scans per robot [default: the whole scenario].
-    #[arg(long)]
-    frames: Option<usize>,
 }
 
 /// The demo's flags.
@@ -84,45 +58,6 @@ struct RunArgs {
     live: live_options::LiveArgs,
 }
 
-#[derive(Subcommand, Debug)]
-enum Bench {
-    /// A station under a simulated fleet: ROBOTS robots each publish a keyframe per scan at
-    /// RATE_HZ for SECONDS (simulated scans at true poses, prepared before the clock starts) to an
-    /// in-process station over loopback; when they are done the station catches up.
-    ///
-    /// Prints keyframes sent and held, the station's intake per second and largest backlog, merges
-    /// and their times (p50 / p95 / max), each keyframe's latency from its arrival at the station
-    /// to the first published global map holding it (and how many no map held), the merge queue's
-    /// depth, the catch-up time and the process's resident memory (before publishing, at the end,
-    /// peak). Progress on stderr.
-    Load {
-        /// Robots publishing (at least 1).
-        #[arg(long, default_value_t = 8)]
-        robots: usize,
-        /// Keyframes per second per robot (above 0).
-        #[arg(long, default_value_t = 10.0)]
-        rate_hz: f64,
-        /// Seconds of publishing; each robot sends SECONDS × RATE_HZ keyframes (rounded, at least 1).
-        #[arg(long, default_value_t = 20.0)]
-        seconds: f64,
-        /// Scenario the robots come from (robots beyond its own replay them from later in their runs).
-        #[arg(long, default_value = "campus")]
-        scenario: String,
-        /// Print the figures as one JSON object on stdout's last line instead of text: robots, sent,
-        /// received, mean_payload_bytes, received_per_s, max_backlog, queue_max, merges, merge_ms
-        /// and latency_ms ({p50, p95, max}, nearest rank), unmapped, catch_up_s, merged_robots, all_merged_s,
-        /// rss_mb ({start, end, peak}), and joint with --joint.
-        #[arg(long)]
-        json: bool,
-        /// Then run the station's joint pose graph on the final map's robots and report its time,
-        /// edges and keyframe RMSE against the truth, rigid and joint (JSON: joint {ms, edges_ms,
-        /// consistency_ms, optimise_ms, robots, keyframes, registered, kept, joined, rigid_rmse_m,
-        /// joint_rmse_m, edge_error_m, edge_error_deg}).
-        #[arg(long)]
-        joint: bool,
-    },
-}
-
 fn main() -> Result<()> {
     bus::init_logging();
     // The station in this process frees large merge buffers all the time (see emr-station's main).
@@ -131,17 +66,6 @@ fn main() -> Result<()> {
     match cli.command {
         None => run_demo(cli.run)?,
         Some(Command::Run(args)) => run_demo(args)?,
-        Some(Command::Report(args)) => run_report(args)?,
-        Some(Command::Bench(Bench::Load { robots, rate_hz, seconds, scenario, json, joint })) => {
-            let joint = joint.then(JointConfig::default);
-            let config = LoadConfig { robots, rate_hz, seconds, scenario, joint, ..LoadConfig::new() };
-            let report = runtime()?.block_on(fleet_load::run(config))?;
-            if json {
-                println!("{}", serde_json::to_string(&report)?);
-            } else {
-                println!("{report}");
-            }
-        }
     }
     Ok(())
 }
@@ -168,27 +92,6 @@ fn run_demo(args: RunArgs) -> Result<()> {
         report.map_err(anyhow::Error::from)
     })?;
     print_demo(&report);
-    Ok(())
-}
-
-fn run_report(args: ReportArgs) -> Result<()> {
-    let mut config = ReportConfig { frames: args.frames, out: args.out, ..ReportConfig::default() };
-    if !args.scenarios.is_empty() {
-        config.scenarios = args.scenarios;
-    }
-    let started = std::time::Instant::now();
-    let report = runtime()?.block_on(async {
-        let interrupt = bus::shutdown_signal().context("cannot handle SIGINT/SIGTERM")?;
-        report::run(&config, interrupt, |line| eprintln!("[{:>5.0} s] {line}", started.elapsed().as_secs_f64()))
-            .await
-            .map_err(anyhow::Error::from)
-    })?;
-    std::fs::create_dir_all(&config.out).with_context(|| format!("cannot create {}", config.out.display()))?;
-    for (name, text) in [("report.md", report::markdown(&report)), ("report.json", report::json(&report))] {
-        let path = config.out.join(name);
-        std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
-        println!("wrote {}", path.display());
-    }
     Ok(())
 }
 

@@ -7,7 +7,6 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 use cloud::memory::configure_allocator;
 
-use cli::bench::BenchCommand;
 use cli::convert::ConvertArgs;
 use cli::eval::EvalArgs;
 use cli::odometry::OdometryArgs;
@@ -30,11 +29,6 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Measure speed and size figures on real data (the numbers in the README).
-    Bench {
-        #[command(subcommand)]
-        what: BenchCommand,
-    },
     /// Simulate one robot's LiDAR in a built-in scenario and write the sweeps in the KITTI layout:
     /// OUT/velodyne/NNNNNN.bin (raw, motion-distorted x y z intensity), OUT/poses.txt (ground truth
     /// at each sweep's end, first pose identity) and OUT/times.txt (sweep starts, first 0).
@@ -71,7 +65,6 @@ fn main() -> Result<()> {
     bus::init_logging();
     configure_allocator();
     match Cli::parse().command {
-        Command::Bench { what } => cli::bench::bench(what),
         Command::Sim(args) => cli::sim::simulate(args),
         Command::Convert(args) => cli::convert::convert(args),
         Command::Odometry(args) => cli::odometry::odometry(args),

@@ -5,8 +5,8 @@ use nalgebra::Isometry3;
 use proto::codec::{self, CodecConfig, DecodeError, DecodeLimits, EncodeError};
 use proto::{CompressedCloud, Fleet, InvalidPose, Pose, Timestamp};
 
+use crate::keyframe::Keyframe;
 use crate::loops::LoopCloser;
-use crate::odometry::Keyframe;
 use cloud::scan_context::ScanContext;
 
 /// Largest keyframe cloud [`keyframe_cloud`] decodes: a voxel-downsampled scan has thousands of

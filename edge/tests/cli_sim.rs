@@ -63,3 +63,10 @@ fn cli_errors_are_clear() {
     let help = String::from_utf8_lossy(&emr_edge(&["sim", "--help"]).stdout).to_string();
     assert!(ALL.iter().all(|n| help.contains(n)), "{help}");
 }
+
+#[test]
+fn the_edge_has_no_benchmark_command() {
+    let out = emr_edge(&["--help"]);
+    let help = String::from_utf8(out.stdout).unwrap();
+    assert!(help.contains("odometry") && !help.lines().any(|l| l.trim_start().starts_with("bench")), "{help}");
+}

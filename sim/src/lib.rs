@@ -41,7 +41,6 @@
 //! - **Limits.** Robots do not see each other; worlds are static; beams of a column fire at the
 //!   same instant; there are no multi-path or mixed-pixel returns.
 
-pub mod bench;
 pub mod bvh;
 pub mod export;
 pub mod geometry;

@@ -5,7 +5,7 @@ mod cli;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use cli::{bench, certs, files, service};
+use cli::{certs, files, service};
 
 /// The central station of EMR-FLOAM multi-robot LiDAR SLAM.
 ///
@@ -56,9 +56,6 @@ enum Command {
     /// that lets robot N publish only under emr/{fleet}/robot/N/**, the station only under
     /// emr/{fleet}/station/**, and tools (plain TCP) only subscribe and query.
     Certs(certs::CertsArgs),
-    /// Benchmarks.
-    #[command(subcommand)]
-    Bench(bench::Bench),
 }
 
 fn main() -> Result<()> {
@@ -74,6 +71,5 @@ fn main() -> Result<()> {
         Command::Watch(args) => service::watch(args),
         Command::Save(args) => service::save(args),
         Command::Certs(args) => certs::certs(args),
-        Command::Bench(which) => bench::run(which),
     }
 }

@@ -1,12 +1,12 @@
 //! `emr-station` end to end on real scans: `align` (global, vgicp, gicp) and `merge` against the
-//! reference transforms of ../shared/data, and `bench merge`.
+//! reference transforms of ../shared/data.
 
 use std::path::Path;
 use std::process::Command;
 
+use cloud::formats::read_transform;
 use cloud::se3::{PoseError, pose_error};
 use nalgebra::{Isometry3, Matrix4};
-use station::pairwise::bench::read_transform;
 use testkit::shared_data as data;
 
 const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
@@ -172,9 +172,7 @@ fn merge_reports_an_unusable_map_as_unmerged() {
 }
 
 #[test]
-fn bench_merge_defaults_to_the_kitti_revisit() {
-    let stdout = station(&["bench", "merge", "--runs", "1"]);
-    println!("{stdout}");
-    assert!(stdout.contains("outcome: aligned"), "{stdout}");
-    assert!(stdout.contains("error vs reference"), "{stdout}");
+fn the_station_has_no_benchmark_command() {
+    let help = station(&["--help"]);
+    assert!(!help.lines().any(|l| l.trim_start().starts_with("bench")), "{help}");
 }

@@ -3,13 +3,13 @@
 //! features.
 
 use cloud::PointCloud;
+use cloud::formats::read_transform;
 use cloud::global::fpfh::fpfh_at;
 use cloud::global::harris::detect_keypoints;
 use cloud::global::normals::{Surfels, estimate_normals};
 use cloud::global::{HarrisConfig, NormalConfig, Orientation};
 use cloud::se3::pose_error;
 use nalgebra::{Isometry3, Point3, Rotation3, Vector3};
-use station::pairwise::bench::{bench_pairwise, read_transform};
 use station::pairwise::{PairwiseConfig, PairwiseError, PairwiseOutcome, register};
 
 use testkit::{Rng, assert_pose_close, pose_from_yaw_deg, shared_data};
@@ -114,9 +114,8 @@ fn kitti_reverse_revisit_without_initial_guess() {
     let read = |name: &str| cloud::formats::read_cloud(&shared_data(KITTI).join(name)).unwrap().cloud;
     let (source, target) = (read("001500.bin"), read("000720.bin"));
     let truth = read_transform(&shared_data(KITTI).join("T_000720_001500.txt")).unwrap();
-    let bench = bench_pairwise(&source, &target, &PairwiseConfig::outdoor(), 1, Some(&truth)).unwrap();
-    println!("{bench}");
-    let result = bench.outcome.aligned().expect("the revisit must align");
+    let outcome = register(&source, &target, &PairwiseConfig::outdoor()).unwrap();
+    let result = outcome.aligned().expect("the revisit must align");
     assert_pose_close!(&result.transform, &truth, 0.2, 1.0);
 }
 
@@ -268,37 +267,4 @@ fn harris_keypoints_of_a_cube_are_its_corners() {
         let corner = p.map(|c| if c < e / 2.0 { 0.0 } else { e });
         assert!((p - corner).norm() < 0.15, "{p} far from {corner}");
     }
-}
-
-/// Benchmark (run with `--release --ignored --nocapture`): the KITTI revisit pair thinned to about
-/// 50k points per scan (voxel 0.12 m), written to /tmp for the Open3D comparison, registered 5 times.
-#[test]
-#[ignore]
-fn bench_kitti_revisit_50k() {
-    let read = |name: &str| cloud::formats::read_cloud(&shared_data(KITTI).join(name)).unwrap().cloud;
-    let truth = read_transform(&shared_data(KITTI).join("T_000720_001500.txt")).unwrap();
-    let thin = |c: PointCloud| cloud::voxel::downsample(&c, 0.12).unwrap();
-    let (source, target) = (thin(read("001500.bin")), thin(read("000720.bin")));
-    for (c, name) in [(&source, "source"), (&target, "target")] {
-        let path = std::env::temp_dir().join(format!("kitti08_{name}_50k.bin"));
-        cloud::formats::write_cloud(&path, c, cloud::formats::FileFormat::KittiBin).unwrap();
-    }
-    let bench = bench_pairwise(&source, &target, &PairwiseConfig::outdoor(), 5, Some(&truth)).unwrap();
-    println!("{bench}");
-    let mut runs: Vec<f64> = bench.runs.iter().map(|d| d.as_secs_f64() * 1e3).collect();
-    runs.sort_by(f64::total_cmp);
-    println!("all runs (ms): {runs:.1?}");
-    // Reliability: the same pair under ten RANSAC seeds.
-    let ok = (0..10u64)
-        .filter(|&seed| {
-            let mut config = PairwiseConfig::outdoor();
-            config.global.ransac.seed = seed;
-            let outcome = register(&source, &target, &config).unwrap();
-            outcome.aligned().is_some_and(|r| {
-                let e = pose_error(&r.transform, &truth);
-                e.translation_m < 0.2 && e.rotation_deg < 1.0
-            })
-        })
-        .count();
-    println!("seeds within 0.2 m / 1 deg: {ok}/10");
 }

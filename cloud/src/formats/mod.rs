@@ -1,4 +1,4 @@
-//! File formats: KITTI .bin, PCD and PLY.
+//! File formats: KITTI .bin, PCD and PLY, and rigid transforms as text.
 //!
 //! Each format module has a pure `parse(&[u8])` and `encode(&PointCloud, ..) -> Vec<u8>`;
 //! [`read_cloud`] and [`write_cloud`] are the only functions that touch files. Parsers never
@@ -22,6 +22,7 @@ mod lzf;
 pub mod pcd;
 pub mod ply;
 mod record;
+pub mod transform;
 
 use std::path::{Path, PathBuf};
 
@@ -29,6 +30,7 @@ pub use lzf::LzfError;
 pub use pcd::PcdEncoding;
 pub use ply::PlyEncoding;
 pub use record::Scalar;
+pub use transform::{TransformError, read_transform};
 
 use crate::PointCloud;
 use crate::point_cloud::InvalidCloud;

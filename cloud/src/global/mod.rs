@@ -18,7 +18,6 @@
 //! [`crate::registration`]) is left to the caller. Bad input (empty clouds, a few points, only NaN,
 //! identical points) gives an error, never a panic; the sampler is seeded, so a call repeats exactly.
 
-pub mod bench;
 pub mod config;
 pub mod error;
 pub mod estimate;

@@ -10,7 +10,6 @@
 //!
 //! Inputs are used as given: downsample first (0.1-0.5 m voxels, [`crate::voxel::downsample`]).
 
-pub mod bench;
 pub mod covariance;
 pub mod factor;
 pub mod target;

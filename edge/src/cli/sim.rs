@@ -4,9 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use clap::ValueEnum;
-use clap::builder::{PossibleValue, PossibleValuesParser};
 use cloud::stopwatch::Stopwatch;
+use edge::args::{SensorArg, scenario_values};
 use sim::{Scenario, SensorKind, SimConfig, Simulator};
 
 use super::progress_bar;
@@ -41,35 +40,6 @@ pub struct SimArgs {
     /// Also draw the world and every robot's path, top-down, into this SVG file.
     #[arg(long)]
     svg: Option<PathBuf>,
-}
-
-/// The LiDAR models on the command line.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum SensorArg {
-    /// Velodyne VLP-16: 16 beams, -15..+15 deg, 1800 columns, 100 m.
-    Vlp16,
-    /// HDL-64E-like: 64 beams, -24.9..+2 deg, 2083 columns, 120 m.
-    Hdl64,
-    /// Ouster-like: 64 beams, -45..+45 deg, 1024 columns, 0.3-100 m.
-    Os64,
-    /// Ouster-like: 128 beams, -45..+45 deg, 1024 columns, 0.3-100 m.
-    Os128,
-}
-
-impl From<SensorArg> for SensorKind {
-    fn from(s: SensorArg) -> Self {
-        match s {
-            SensorArg::Vlp16 => SensorKind::Vlp16,
-            SensorArg::Hdl64 => SensorKind::Hdl64,
-            SensorArg::Os64 => SensorKind::Os64,
-            SensorArg::Os128 => SensorKind::Os128,
-        }
-    }
-}
-
-/// The scenario names with their descriptions, so `--help` lists them.
-pub fn scenario_values() -> PossibleValuesParser {
-    PossibleValuesParser::new(sim::CATALOG.iter().map(|s| PossibleValue::new(s.name).help(s.description)))
 }
 
 /// Builds a scenario and reports its size and build time (the BVH build dominates).
@@ -110,16 +80,6 @@ pub fn simulate(args: SimArgs) -> Result<()> {
 pub fn convert(scenario: &str, robot: u32, frames: Option<usize>, out: &Path) -> Result<()> {
     let simulator = Simulator::new(load_scenario(scenario)?, robot as usize - 1, SimConfig::default())?;
     write_simulation(&simulator, frames, out)
-}
-
-/// `emr-edge bench sim`: sweeps and rays per second of each sensor asked for.
-pub fn bench(scenario: &str, sensor: Option<SensorArg>, frames: usize) -> Result<()> {
-    let scenario = load_scenario(scenario)?;
-    let sensors = sensor.map_or(SensorKind::ALL.to_vec(), |s| vec![s.into()]);
-    for kind in sensors {
-        println!("{}", sim::bench::run(&scenario, kind, frames)?);
-    }
-    Ok(())
 }
 
 /// Writes a simulated robot's sweeps in the KITTI layout, with a progress bar.

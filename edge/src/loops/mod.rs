@@ -32,7 +32,7 @@ use cloud::{PointCloud, Preset};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::odometry::Keyframe;
+use crate::keyframe::Keyframe;
 use cloud::pose_graph::{Edge, EdgeKind, PoseGraph, PoseGraphError, Report};
 use cloud::scan_context::{Comparable, RingKeyIndex, ScanContext, ScanContextConfig};
 use consistency::{ConsistencyConfig, LoopView};

@@ -46,25 +46,13 @@ use cloud::stopwatch::{Stopwatch, millis, timed};
 use nalgebra::{Isometry3, Point3};
 use serde::Serialize;
 
+pub use crate::keyframe::Keyframe;
 pub use config::{FeatureConfig, KeyframeConfig, MapConfig, Method, OdometryConfig, SolverConfig};
 use deskew::SweepMotion;
 use features::{FeatureError, Features};
 use health::Health;
 use local_map::{FeatureMap, MAX_POINTS_PER_VOXEL, ScanLine};
 use motion_model::MotionModel;
-
-/// A keyframe: the deskewed, downsampled scan at its pose.
-#[derive(Clone, Debug)]
-pub struct Keyframe {
-    /// 0, 1, 2, ... in order.
-    pub seq: u64,
-    /// Index of the scan that made it.
-    pub frame: usize,
-    /// Sensor pose at the sweep end, odometry frame.
-    pub pose: Isometry3<f64>,
-    /// Motion-compensated cloud in the sweep-end sensor frame, voxel-downsampled.
-    pub cloud: PointCloud,
-}
 
 /// What one scan produced.
 #[derive(Clone, Debug)]

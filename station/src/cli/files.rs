@@ -5,10 +5,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use cloud::Preset;
+use cloud::formats::read_transform;
 use nalgebra::Isometry3;
 use station::merge::files::{self, AlignMethod, Alignment};
 use station::merge::{MapStatus, MergeConfig, MergeReport, PairVerdict};
-use station::pairwise::bench::read_transform;
 
 // `emr-station info`.
 #[derive(Args, Debug)]

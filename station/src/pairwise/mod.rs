@@ -13,8 +13,6 @@
 //! [`register`] does both for a single pair. Bad input (empty clouds, a few points, NaN, identical
 //! points) gives an error or [`PairwiseOutcome::NotAligned`], never a panic.
 
-pub mod bench;
-
 pub use cloud::confidence;
 
 use std::time::Duration;

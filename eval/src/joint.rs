@@ -1,4 +1,4 @@
-//! `emr-demo bench load --joint`: the station's joint pose graph ([`station::joint`]) run on what a
+//! `emr-eval load --joint`: the station's joint pose graph ([`station::joint`]) run on what a
 //! loaded station held at the end, timed and measured against the truth.
 //!
 //! The load bench's keyframes are at their true poses, so each robot's map is undistorted and the
@@ -15,7 +15,7 @@ use proto::GlobalMap;
 use serde::Serialize;
 use station::joint::{self, Constraint, JointConfig, JointError, KeyframeRef};
 
-use crate::fleet_load::Percentiles;
+use cloud::stats::Spread;
 use station::service::joint_input::{JointInput, joint_input};
 use station::service::merge_job::RobotSnapshot;
 
@@ -48,9 +48,9 @@ pub struct JointLoad {
     pub joint_rmse_m: Option<f64>,
     /// How far the kept inter-robot edges' measurements lie from the truth, metres (`None`
     /// without kept edges).
-    pub edge_error_m: Option<Percentiles>,
+    pub edge_error_m: Option<Spread>,
     /// ... and degrees.
-    pub edge_error_deg: Option<Percentiles>,
+    pub edge_error_deg: Option<Spread>,
 }
 
 /// Runs the joint graph on `fleet` as `map` merged it; `frames` are each robot's frame in the world
@@ -81,8 +81,8 @@ pub fn measure(
         joined: solution.joined.iter().filter(|&&j| j).count(),
         rigid_rmse_m: rmse(&input, &truth, rigid),
         joint_rmse_m: rmse(&input, &truth, optimised),
-        edge_error_m: Percentiles::of(&edge_metres),
-        edge_error_deg: Percentiles::of(&edge_degrees),
+        edge_error_m: Spread::of_some(&edge_metres),
+        edge_error_deg: Spread::of_some(&edge_degrees),
     }))
 }
 

@@ -1,24 +1,28 @@
-//! `emr-edge bench`: speed and size figures on real data.
+//! The commands of `emr-eval`, one module each where they need more than a line.
 
 mod codec;
+mod load;
 mod loops;
+mod merge;
 mod odometry;
 mod posegraph;
+mod report;
 mod robustness;
 
 use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Subcommand;
+use edge::args::{SensorArg, SourceArgs, TuningArgs, scenario_values};
 use edge::odometry::pipeline::{self, Tuning};
-
-use super::sim::{SensorArg, scenario_values};
-use super::{SourceArgs, TuningArgs};
+use load::LoadArgs;
 use loops::LoopsArgs;
+use merge::MergeArgs;
+use report::ReportArgs;
 use robustness::RobustnessArgs;
 
 #[derive(Subcommand, Debug)]
-pub enum BenchCommand {
+pub enum Command {
     /// Point-cloud codec: compression ratio against raw f32 xyz, encode and decode time per scan
     /// (one core), maximum coordinate error, on every KITTI .bin scan of a directory.
     Codec {
@@ -59,7 +63,7 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3)]
         runs: usize,
     },
-    /// Odometry robustness matrix (issue 13): every k-th scan of KITTI 00 and of the simulator,
+    /// Odometry robustness matrix: every k-th scan of KITTI 00 and of the simulator,
     /// starting mid-run; a car at 10 and 20 m/s; turning in place at 90 and 180 deg/s; sensors at
     /// 1, 2, 5 Hz; Ouster-like 64 and 128 beams; shuffled points. Per case: our ATE, whether the
     /// track held (final error below 5 % of the path or 0.1 m, and 5 deg), beside KISS-ICP on the
@@ -84,7 +88,7 @@ pub enum BenchCommand {
         #[arg(long)]
         write_synthetic: Option<PathBuf>,
     },
-    /// Loop closure (issue 14), the paper's comparison: MR (odometry only) against EMR (with loops)
+    /// Loop closure, the paper's comparison: MR (odometry only) against EMR (with loops)
     /// on the simulated robots that revisit places and on the aisles' identical rows: ATE of both,
     /// loops accepted, false loops (more than 0.3 m or 2 deg from the true relative pose), loop
     /// milliseconds per keyframe on one core.
@@ -99,6 +103,25 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 20)]
         runs: usize,
     },
+    /// The station's pairwise global registration timed on SOURCE and TARGET (default: the KITTI 08
+    /// reverse revisit in ../shared/data/kitti08_revisit, 001500.bin onto 000720.bin, with its
+    /// reference).
+    Merge(MergeArgs),
+    /// A station under a simulated fleet: ROBOTS robots each publish a keyframe per scan at
+    /// RATE_HZ for SECONDS (simulated scans at true poses, prepared before the clock starts) to an
+    /// in-process station over loopback; when they are done the station catches up.
+    ///
+    /// Prints keyframes sent and held, the station's intake per second and largest backlog, merges
+    /// and their times (median / p95 / max), each keyframe's latency from its arrival at the station
+    /// to the first published global map holding it (and how many no map held), the merge queue's
+    /// depth, the catch-up time and the process's resident memory (before publishing, at the end,
+    /// peak). Progress on stderr.
+    Load(LoadArgs),
+    /// The paper's four systems side by side: MR-ALOAM, MR-FLOAM (no loops), EMR-ALOAM, EMR-FLOAM
+    /// (loops), each run through the demo on the simulated scenarios. Writes OUT/report.md (ATE per
+    /// robot, ms per scan, map points and bytes, merge time, loops), OUT/report.json, and each
+    /// run's demo results in OUT/SCENARIO/SYSTEM. Progress on stderr.
+    Report(ReportArgs),
     /// Global registration without an initial guess (FPFH + RANSAC, the scan defaults): median
     /// time of `cloud::global::align` and the error against the reference, on DIR/001500.bin onto
     /// DIR/000720.bin with DIR/T_000720_001500.txt (the KITTI 08 reverse revisit).
@@ -112,28 +135,37 @@ pub enum BenchCommand {
     },
 }
 
-/// `emr-edge bench WHAT`.
-pub fn bench(what: BenchCommand) -> Result<()> {
-    match what {
-        BenchCommand::Codec { data, step, repeat } => println!("{}", codec::codec(&data, step, repeat)?),
-        BenchCommand::Sim { sensor, scenario, frames } => super::sim::bench(&scenario, sensor, frames)?,
-        BenchCommand::Odometry { source, tuning, frames, runs } => {
+/// `emr-eval COMMAND`.
+pub fn run(command: Command) -> Result<()> {
+    match command {
+        Command::Codec { data, step, repeat } => println!("{}", codec::codec(&data, step, repeat)?),
+        Command::Sim { sensor, scenario, frames } => {
+            let scenario = sim::Scenario::by_name(&scenario)?;
+            let sensors = sensor.map_or(sim::SensorKind::ALL.to_vec(), |s| vec![s.into()]);
+            for kind in sensors {
+                println!("{}", eval::simulator::run(&scenario, kind, frames)?);
+            }
+        }
+        Command::Odometry { source, tuning, frames, runs } => {
             let config = Tuning::from(&tuning).load()?;
             let sim = source.sim.config();
             let scans = pipeline::read_all(pipeline::open(&source.input, source.topic, Some(frames), &config, &sim)?)?;
             println!("{}", odometry::odometry(&scans, &config, runs)?);
         }
-        BenchCommand::Robustness(args) => robustness::robustness(args)?,
-        BenchCommand::Posegraph { data, poses, runs, write_synthetic } => {
+        Command::Robustness(args) => robustness::robustness(args)?,
+        Command::Posegraph { data, poses, runs, write_synthetic } => {
             println!("{}", posegraph::posegraph(&data, poses, runs, write_synthetic.as_deref())?)
         }
-        BenchCommand::Loops(args) => loops::loops(args)?,
-        BenchCommand::Gicp { data, runs } => println!("{}", cloud::registration::bench::gicp(&data, runs)?),
-        BenchCommand::Global { data, runs } => {
+        Command::Loops(args) => loops::loops(args)?,
+        Command::Merge(args) => merge::merge(args)?,
+        Command::Load(args) => load::load(args)?,
+        Command::Report(args) => report::report(args)?,
+        Command::Gicp { data, runs } => println!("{}", eval::registration::gicp(&data, runs)?),
+        Command::Global { data, runs } => {
             let (source, target, reference) =
                 (data.join("001500.bin"), data.join("000720.bin"), data.join("T_000720_001500.txt"));
             let config = cloud::global::GlobalConfig::default();
-            println!("{}", cloud::global::bench::global(&source, &target, Some(&reference), &config, runs)?);
+            println!("{}", eval::global::global(&source, &target, Some(&reference), &config, runs)?);
         }
     }
     Ok(())
@@ -143,4 +175,9 @@ pub fn bench(what: BenchCommand) -> Result<()> {
 fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
     values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// The runtime of the commands that run a station or robots in this process.
+fn runtime() -> Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread().enable_all().build()?)
 }

@@ -1,4 +1,4 @@
-//! `emr-demo bench load`: a station under a simulated fleet's load.
+//! `emr-eval load`: a station under a simulated fleet's load.
 //!
 //! N robots publish one keyframe per scan at the sensor rate (10 Hz: ten times what a robot driving
 //! 1.5 m/s with 1 m keyframe spacing sends, the worst case) to an in-process station, each robot on
@@ -17,12 +17,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use crate::fleet_joint::{self, JointLoad};
+use crate::joint::{self, JointLoad};
 use cloud::memory::{peak_rss_mb, rss_mb};
 use cloud::scan_context::{ScanContext, ScanContextConfig};
 use cloud::se3::{PoseError, pose_error};
+use cloud::stats::Spread;
 use edge::odometry::Keyframe;
-use edge::odometry::stats::Spread;
 use edge::wire::keyframe_message;
 use nalgebra::Isometry3;
 use prost::Message;
@@ -57,7 +57,7 @@ pub struct LoadConfig {
     pub voxel: f32,
     /// The station's settings.
     pub station: StationConfig,
-    /// Run the station's joint pose graph on the final maps ([`crate::fleet_joint`]), when set
+    /// Run the station's joint pose graph on the final maps ([`crate::joint`]), when set
     /// (default none: it runs after the station stops and adds nothing to the other figures).
     pub joint: Option<JointConfig>,
 }
@@ -125,14 +125,14 @@ pub struct LoadReport {
     /// Merges run while publishing and until caught up.
     pub merges: usize,
     /// Merge wall time (composing and publishing a global map), milliseconds (`None` without merges).
-    pub merge_ms: Option<Percentiles>,
+    pub merge_ms: Option<Spread>,
     /// Rounds of estimation (preparing maps, tracking and searching pairs) run beside the merges.
     pub rounds: usize,
     /// Their wall time, milliseconds (`None` without rounds).
-    pub round_ms: Option<Percentiles>,
+    pub round_ms: Option<Spread>,
     /// Per keyframe, from its arrival at the station to the first published global map holding it,
     /// milliseconds (`None` when no keyframe was in a map).
-    pub latency_ms: Option<Percentiles>,
+    pub latency_ms: Option<Spread>,
     /// Keyframes the station received that no published global map held.
     pub unmapped: u64,
     /// From the last keyframe published to a published global map holding every keyframe, seconds.
@@ -181,32 +181,13 @@ impl StationMemory {
     }
 }
 
-/// Nearest-rank percentiles of a series.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct Percentiles {
-    /// Median.
-    pub p50: f64,
-    /// 95th percentile.
-    pub p95: f64,
-    /// Maximum.
-    pub max: f64,
-}
-
-impl Percentiles {
-    /// Those of `values`; `None` when there are none.
-    pub fn of(values: &[f64]) -> Option<Self> {
-        let Spread { median, p95, max } = Spread::of(values);
-        (!values.is_empty()).then_some(Percentiles { p50: median, p95, max })
-    }
-}
-
 /// Placement errors against the simulator's truth.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct PlacementError {
     /// Translation error, metres.
-    pub metres: Percentiles,
+    pub metres: Spread,
     /// Rotation error, degrees.
-    pub degrees: Percentiles,
+    pub degrees: Spread,
 }
 
 impl PlacementError {
@@ -230,7 +211,7 @@ impl PlacementError {
                 Some((translation_m, rotation_deg))
             })
             .unzip();
-        Some(PlacementError { metres: Percentiles::of(&metres)?, degrees: Percentiles::of(&degrees)? })
+        Some(PlacementError { metres: Spread::of_some(&metres)?, degrees: Spread::of_some(&degrees)? })
     }
 
     /// The larger of two, by their worst translation.
@@ -320,7 +301,7 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
         (Some(joint), Some(map)) => {
             info!("running the joint pose graph on the final maps");
             let (fleet, map, frames, joint) = (summary.fleet.clone(), map.clone(), Arc::clone(&frames), joint.clone());
-            tokio::task::spawn_blocking(move || fleet_joint::measure(&fleet, &map, &frames, &joint))
+            tokio::task::spawn_blocking(move || joint::measure(&fleet, &map, &frames, &joint))
                 .await
                 .map_err(|e| LoadError::Joint(e.to_string()))?
                 .map_err(|e| LoadError::Joint(e.to_string()))?
@@ -336,10 +317,10 @@ pub async fn run(config: LoadConfig) -> Result<LoadReport, LoadError> {
         max_backlog: observed.max_backlog,
         queue_max: observed.queue_max,
         merges: summary.merge_ms.len(),
-        merge_ms: Percentiles::of(&summary.merge_ms),
+        merge_ms: Spread::of_some(&summary.merge_ms),
         rounds: summary.round_ms.len(),
-        round_ms: Percentiles::of(&summary.round_ms),
-        latency_ms: Percentiles::of(&observed.latencies.ms),
+        round_ms: Spread::of_some(&summary.round_ms),
+        latency_ms: Spread::of_some(&observed.latencies.ms),
         unmapped: observed.latencies.unmapped(),
         catch_up_s,
         merged_robots,
@@ -689,8 +670,8 @@ impl fmt::Display for LoadReport {
                 cm(j.joint_rmse_m),
                 j.edge_error_m.zip(j.edge_error_deg).map_or("none".into(), |(m, d)| format!(
                     "median {:.1} cm / {:.2} deg, p95 {:.1} cm / {:.2} deg, max {:.1} cm / {:.2} deg",
-                    m.p50 * 100.0,
-                    d.p50,
+                    m.median * 100.0,
+                    d.median,
                     m.p95 * 100.0,
                     d.p95,
                     m.max * 100.0,
@@ -702,16 +683,16 @@ impl fmt::Display for LoadReport {
     }
 }
 
-/// `max … m / … deg (p50 … m)`, or `none`.
+/// `max … m / … deg (median … m)`, or `none`.
 fn placement(e: Option<PlacementError>) -> String {
     e.map_or("none".into(), |e| {
-        format!("max {:.3} m / {:.2} deg (median {:.3} m)", e.metres.max, e.degrees.max, e.metres.p50)
+        format!("max {:.3} m / {:.2} deg (median {:.3} m)", e.metres.max, e.degrees.max, e.metres.median)
     })
 }
 
-/// `p50 … / p95 … / max … ms`, or `none`.
-fn spread(p: Option<Percentiles>) -> String {
-    p.map_or("none".into(), |p| format!("p50 {:.0} / p95 {:.0} / max {:.0} ms", p.p50, p.p95, p.max))
+/// `median … / p95 … / max … ms`, or `none`.
+fn spread(p: Option<Spread>) -> String {
+    p.map_or("none".into(), |p| format!("median {:.0} / p95 {:.0} / max {:.0} ms", p.median, p.p95, p.max))
 }
 
 #[cfg(test)]
@@ -772,13 +753,6 @@ mod tests {
         l.mapped(&map(2, &[(1, 3), (2, 1)]), at(2000));
         assert_eq!(l.ms, [1000.0, 1000.0, 1900.0, 2000.0]);
         assert_eq!((l.unmapped(), l.revision), (0, 2));
-    }
-
-    #[test]
-    fn percentiles_are_nearest_rank_and_none_when_empty() {
-        let v: Vec<f64> = (1..=20).map(f64::from).collect();
-        assert_eq!(Percentiles::of(&v), Some(Percentiles { p50: 10.0, p95: 19.0, max: 20.0 }));
-        assert_eq!(Percentiles::of(&[]), None);
     }
 
     #[test]

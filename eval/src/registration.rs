@@ -1,15 +1,17 @@
-//! `emr-edge bench gicp`: registration time and accuracy on a cloud pair with a reference pose.
+//! `emr-eval gicp`: registration time and accuracy on a cloud pair with a reference pose.
 
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Isometry3, Matrix4};
+use nalgebra::Isometry3;
 
-use super::{GaussianCloud, Method, RegistrationConfig, RegistrationError, RegistrationResult, align_gaussians};
-use crate::PointCloud;
-use crate::formats::{FormatError, read_cloud};
-use crate::se3::{PoseError, from_matrix, pose_error};
-use crate::voxel::downsample;
+use cloud::PointCloud;
+use cloud::formats::{FormatError, TransformError, read_cloud, read_transform};
+use cloud::registration::{
+    GaussianCloud, Method, RegistrationConfig, RegistrationError, RegistrationResult, align_gaussians,
+};
+use cloud::se3::{PoseError, pose_error};
+use cloud::voxel::downsample;
 
 /// Voxel edge both clouds are downsampled to before registration (small_gicp's default), metres.
 pub const DOWNSAMPLING: f32 = 0.25;
@@ -20,9 +22,9 @@ pub enum BenchError {
     /// A cloud could not be read.
     #[error(transparent)]
     Cloud(#[from] FormatError),
-    /// The reference pose file could not be read or is not a 4x4 rigid transform.
-    #[error("{}: {reason}", path.display())]
-    Reference { path: PathBuf, reason: String },
+    /// The reference pose file could not be read or is not a rigid transform.
+    #[error(transparent)]
+    Reference(#[from] TransformError),
     /// A registration refused its input.
     #[error(transparent)]
     Registration(#[from] RegistrationError),
@@ -73,7 +75,7 @@ pub fn gicp(data: &Path, runs: usize) -> Result<Report, BenchError> {
     let runs = runs.max(1);
     let source_raw = read_cloud(&data.join("source.ply"))?.cloud;
     let target_raw = read_cloud(&data.join("target.ply"))?.cloud;
-    let reference = read_reference(&data.join("T_target_source.txt"))?;
+    let reference = read_transform(&data.join("T_target_source.txt"))?;
     let config = RegistrationConfig::default();
     let single_level = RegistrationConfig { coarse_levels: 0, ..config.clone() };
     let variants = [
@@ -127,24 +129,12 @@ fn prepare(source: &PointCloud, target: &PointCloud, config: &RegistrationConfig
 pub(crate) fn median_ms<E>(runs: usize, mut f: impl FnMut() -> Result<(), E>) -> Result<Timing, E> {
     let mut times = Vec::with_capacity(runs);
     for _ in 0..runs {
-        let (result, took) = crate::stopwatch::timed(&mut f);
+        let (result, took) = cloud::stopwatch::timed(&mut f);
         result?;
-        times.push(crate::stopwatch::millis(took));
+        times.push(cloud::stopwatch::millis(took));
     }
     times.sort_by(f64::total_cmp);
     Ok(Timing { median: times[times.len() / 2], min: times[0] })
-}
-
-/// Reads a 4x4 row-major matrix (whitespace separated) as a rigid transform.
-pub(crate) fn read_reference(path: &Path) -> Result<Isometry3<f64>, BenchError> {
-    let fail = |reason: String| BenchError::Reference { path: path.to_owned(), reason };
-    let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
-    let values: Vec<f64> =
-        text.split_whitespace().map(str::parse).collect::<Result<_, _>>().map_err(|e| fail(format!("{e}")))?;
-    if values.len() != 16 {
-        return Err(fail(format!("{} numbers, expected 16", values.len())));
-    }
-    from_matrix(&Matrix4::from_row_slice(&values)).ok_or_else(|| fail("not a rigid transform".into()))
 }
 
 impl fmt::Display for Report {

@@ -1,6 +1,6 @@
-//! The paper's four systems side by side (`emr-demo report`): MR-ALOAM and MR-FLOAM (odometry
+//! The paper's four systems side by side (`emr-eval report`): MR-ALOAM and MR-FLOAM (odometry
 //! only), EMR-ALOAM and EMR-FLOAM (each robot closes its loops), each run through the demo
-//! ([`crate::run`]) on the simulated scenarios, judged against the simulator's truth.
+//! ([`demo::run`]) on the simulated scenarios, judged against the simulator's truth.
 //!
 //! The paper (its Tables 5-10) compares trajectory error, time and map size; here per system and
 //! scenario: ATE RMSE per robot (odometry and loop-closed, SE(3)-aligned in the robot's own frame;
@@ -10,12 +10,12 @@
 
 use std::path::PathBuf;
 
+use cloud::stats::Spread;
 use edge::odometry::Method;
-use edge::odometry::stats::Spread;
 use prost::Message;
 use serde::Serialize;
 
-use crate::{DemoConfig, DemoError, DemoReport};
+use demo::{DemoConfig, DemoError, DemoReport};
 
 /// One of the paper's systems: an odometry, with or without loop closure.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -195,7 +195,7 @@ pub async fn run(
                 loops: system.loops,
                 ..DemoConfig::new()
             };
-            let report = crate::run(demo, &mut interrupt).await.map_err(|source| ReportError::Run {
+            let report = demo::run(demo, &mut interrupt).await.map_err(|source| ReportError::Run {
                 scenario: scenario.clone(),
                 system: system.name,
                 source,

@@ -1,14 +1,15 @@
-//! `emr-edge bench global`: [`align`] timed on a scan pair, and its error against a reference.
+//! `emr-eval global`: [`align`] timed on a scan pair, and its error against a reference.
 
 use std::fmt;
 use std::path::{Path, PathBuf};
 
 use nalgebra::Isometry3;
 
-use super::{GlobalAlignment, GlobalConfig, GlobalError, align};
-use crate::formats::read_cloud;
-use crate::registration::bench::{BenchError as InputError, Timing, median_ms, read_reference};
-use crate::se3::{PoseError, pose_error};
+use cloud::formats::{read_cloud, read_transform};
+use cloud::global::{GlobalAlignment, GlobalConfig, GlobalError, align};
+use cloud::se3::{PoseError, pose_error};
+
+use crate::registration::{BenchError as InputError, Timing, median_ms};
 
 /// Why the benchmark could not run.
 #[derive(Debug, thiserror::Error)]
@@ -50,7 +51,7 @@ pub fn global(
 ) -> Result<Report, BenchError> {
     let s = read_cloud(source).map_err(InputError::from)?.cloud;
     let t = read_cloud(target).map_err(InputError::from)?.cloud;
-    let reference: Option<Isometry3<f64>> = reference.map(read_reference).transpose()?;
+    let reference: Option<Isometry3<f64>> = reference.map(read_transform).transpose().map_err(InputError::from)?;
     let alignment = align(&s, &t, config)?;
     let runs = runs.max(1);
     let align_ms = median_ms(runs, || align(&s, &t, config).map(|_| ()))?;

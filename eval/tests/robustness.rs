@@ -1,4 +1,4 @@
-//! The robustness matrix's cases (issue 13) against their ground truth: the right scans, the right
+//! The robustness matrix's cases against their ground truth: the right scans, the right
 //! poses, shuffling that keeps the points, and failures reported as rows.
 
 use std::path::PathBuf;
@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use cloud::Preset;
 use cloud::trajectory::Trajectory;
 use edge::recording::{self, RecordingOptions};
-use edge::robustness::{
+use eval::robustness::{
     self, Case, HoldCriterion, Motion, Planned, Recipe, RunOptions, SimCase, kitti_every, run_ours, shuffled, simulated,
 };
 use nalgebra::{Isometry3, Vector3};
@@ -199,15 +199,15 @@ fn the_matrix_names_every_case_once_and_quick_is_a_subset() {
     }
 }
 
-fn emr_edge(args: &[&str]) -> std::process::Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_emr-edge")).args(args).output().unwrap()
+fn emr_eval(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_emr-eval")).args(args).output().unwrap()
 }
 
 #[test]
 fn the_command_prints_a_row_per_chosen_case_and_refuses_an_unknown_one() {
     let data = kitti();
     let data = data.to_str().unwrap();
-    let run = emr_edge(&["bench", "robustness", "--no-kiss", "--case", "from-5-every-5", "--data", data]);
+    let run = emr_eval(&["robustness", "--no-kiss", "--case", "from-5-every-5", "--data", data]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let table = String::from_utf8(run.stdout).unwrap();
     let lines: Vec<&str> = table.lines().collect();
@@ -220,7 +220,7 @@ fn the_command_prints_a_row_per_chosen_case_and_refuses_an_unknown_one() {
     assert!(cells[8].parse::<usize>().is_ok(), "{}", lines[2]);
     assert_eq!(&cells[9..11], ["-", "-"], "{}", lines[2]);
     assert!(String::from_utf8_lossy(&run.stderr).contains("[1/1] kitti00-from-5-every-5"));
-    let none = emr_edge(&["bench", "robustness", "--no-kiss", "--case", "no-such-case", "--data", data]);
+    let none = emr_eval(&["robustness", "--no-kiss", "--case", "no-such-case", "--data", data]);
     assert!(!none.status.success());
     assert!(String::from_utf8_lossy(&none.stderr).contains("no case matches \"no-such-case\""));
 }

@@ -1,4 +1,4 @@
-//! The table `emr-edge bench robustness` prints: one row per case, ours beside KISS-ICP.
+//! The table `emr-eval robustness` prints: one row per case, ours beside KISS-ICP.
 
 use std::fmt;
 
@@ -90,7 +90,7 @@ fn ms(value: Option<f64>) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::odometry::pipeline::AteRmse;
+    use edge::odometry::pipeline::AteRmse;
 
     #[test]
     fn a_failed_case_shows_its_error_and_dashes() {

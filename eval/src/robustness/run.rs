@@ -4,8 +4,8 @@ use cloud::se3::pose_error;
 use nalgebra::Isometry3;
 
 use super::case::{Case, prepared};
-use crate::odometry::pipeline::{self, AteRmse};
-use crate::odometry::{Odometry, OdometryConfig};
+use edge::odometry::pipeline::{self, AteRmse};
+use edge::odometry::{Odometry, OdometryConfig};
 
 /// When a run counts as having held its track.
 #[derive(Clone, Debug, PartialEq)]
@@ -94,8 +94,8 @@ pub struct Outcome {
     pub verdict: Result<Verdict, String>,
     /// Median wall time per scan, milliseconds, when it ran.
     pub ms_per_scan: Option<f64>,
-    /// Scans on which the odometry declared itself lost. None where it did not run
-    /// (issue 13); KISS-ICP does not say.
+    /// Scans on which the odometry declared itself lost. None where it did not run;
+    /// KISS-ICP does not say.
     pub lost: Option<usize>,
     /// Scans located from a coarse or global alignment instead of the prediction. None where it
     /// did not run.

@@ -1,4 +1,4 @@
-//! `emr-edge bench codec`: the point-cloud codec's sizes, times and errors on real scans.
+//! `emr-eval codec`: the point-cloud codec's sizes, times and errors on real scans.
 
 use std::fmt;
 use std::path::{Path, PathBuf};

@@ -1,50 +1,36 @@
-//! `bench merge`: the pairwise global registration timed on a pair of clouds.
+//! `emr-eval merge`: the pairwise global registration timed on a pair of clouds.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use clap::Subcommand;
 use cloud::Preset;
+use eval::merge::bench_merge_files;
 use station::merge::MergeConfig;
-use station::pairwise::bench::bench_merge_files;
 
 /// The KITTI reverse-revisit pair, relative to the project root.
 const KITTI_REVISIT: &str = "../shared/data/kitti08_revisit";
 
-#[derive(Subcommand, Debug)]
-pub enum Bench {
-    /// Time the pairwise global registration on SOURCE and TARGET (default: the KITTI 08 reverse
-    /// revisit in ../shared/data/kitti08_revisit, 001500.bin onto 000720.bin, with its reference).
-    Merge {
-        /// Source cloud (moved onto the target).
-        source: Option<PathBuf>,
-        /// Target cloud.
-        target: Option<PathBuf>,
-        /// Reference transform (4x4 or KITTI 3x4 text) mapping source into target.
-        #[arg(long)]
-        reference: Option<PathBuf>,
-        /// Runs to time.
-        #[arg(long, default_value_t = 3)]
-        runs: usize,
-        /// Parameter preset: indoor or outdoor.
-        #[arg(long, default_value_t = Preset::Outdoor)]
-        preset: Preset,
-    },
-}
-
-pub fn run(bench: Bench) -> Result<()> {
-    match bench {
-        Bench::Merge { source, target, reference, runs, preset } => merge(source, target, reference, runs, preset),
-    }
-}
-
-fn merge(
+/// The arguments of `emr-eval merge`.
+#[derive(clap::Args, Debug)]
+pub struct MergeArgs {
+    /// Source cloud (moved onto the target).
     source: Option<PathBuf>,
+    /// Target cloud.
     target: Option<PathBuf>,
+    /// Reference transform (4x4 or KITTI 3x4 text) mapping source into target.
+    #[arg(long)]
     reference: Option<PathBuf>,
+    /// Runs to time.
+    #[arg(long, default_value_t = 3)]
     runs: usize,
+    /// Parameter preset: indoor or outdoor.
+    #[arg(long, default_value_t = Preset::Outdoor)]
     preset: Preset,
-) -> Result<()> {
+}
+
+/// `emr-eval merge`.
+pub fn merge(args: MergeArgs) -> Result<()> {
+    let MergeArgs { source, target, reference, runs, preset } = args;
     let (source, target, reference) = match (source, target) {
         (Some(s), Some(t)) => (s, t, reference),
         (None, None) => {

@@ -1,4 +1,4 @@
-//! `emr-edge bench posegraph`: the pose-graph optimiser on the standard g2o benchmarks and on a
+//! `emr-eval posegraph`: the pose-graph optimiser on the standard g2o benchmarks and on a
 //! synthetic graph with loops and known truth.
 
 use std::fmt;
@@ -11,7 +11,6 @@ use nalgebra::Isometry3;
 use sim::noise::SplitMix;
 
 use super::median;
-use crate::cli::posegraph::read;
 
 /// The g2o files measured, in `--data`.
 const FILES: [&str; 2] = ["parking-garage.g2o", "smallGrid3D.g2o"];
@@ -34,7 +33,7 @@ pub struct Row {
     pub ate: Option<(f64, f64)>,
 }
 
-/// Figures of `emr-edge bench posegraph`.
+/// Figures of `emr-eval posegraph`.
 pub struct PosegraphReport {
     /// Timed runs per graph.
     pub runs: usize,
@@ -49,7 +48,9 @@ pub fn posegraph(data: &Path, poses: usize, runs: usize, write_synthetic: Option
     let least_squares = PoseGraphConfig::least_squares();
     let mut rows = Vec::new();
     for file in FILES {
-        let graph = read(&data.join(file))?;
+        let path = data.join(file);
+        let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+        let graph = g2o::parse(&text).with_context(|| format!("{}", path.display()))?;
         rows.push(measure(file.to_owned(), &graph, &least_squares, runs, None)?);
         tracing::info!(file, "measured");
     }

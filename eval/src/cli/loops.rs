@@ -1,4 +1,4 @@
-//! `emr-edge bench loops`: the paper's comparison, MR (odometry only) against EMR (odometry with loop
+//! `emr-eval loops`: the paper's comparison, MR (odometry only) against EMR (odometry with loop
 //! closure), on the simulated robots whose paths revisit places and on the aisles' trap.
 
 use std::fmt::Write as _;
@@ -12,9 +12,9 @@ use edge::odometry::pipeline::{self, AteRmse};
 use edge::odometry::{Odometry, OdometryConfig};
 use edge::source::SourceSpec;
 
-use crate::cli::SimArgs;
+use edge::args::SimArgs;
 
-/// Arguments of `emr-edge bench loops`.
+/// Arguments of `emr-eval loops`.
 #[derive(clap::Args, Debug)]
 pub struct LoopsArgs {
     /// Sources to run (repeatable) [default: warehouse-small and warehouse-large robots 1-2,
@@ -46,7 +46,7 @@ const CASES: [&str; 9] = [
     "sim:aisles:2",
 ];
 
-/// `emr-edge bench loops`: per source, one pass of the odometry with the loop closure beside it on a
+/// `emr-eval loops`: per source, one pass of the odometry with the loop closure beside it on a
 /// one-thread pool; MR is the odometry's trajectory, EMR the optimised one.
 pub fn loops(args: LoopsArgs) -> Result<()> {
     let sources: Vec<SourceSpec> = if args.sources.is_empty() {

@@ -1,4 +1,4 @@
-//! `emr-demo report` on one short scenario: the four systems are in report.md and report.json, the
+//! `emr-eval report` on one short scenario: the four systems are in report.md and report.json, the
 //! MR systems close no loop, and every figure is the one its run wrote in its own summary.json.
 
 use std::path::Path;
@@ -14,12 +14,12 @@ fn read_json(path: &Path) -> Value {
 fn the_report_holds_the_four_systems_and_their_runs_figures() {
     let out = tempfile::tempdir().unwrap();
     let dir = out.path().to_str().unwrap();
-    let run = Command::new(env!("CARGO_BIN_EXE_emr-demo"))
+    let run = Command::new(env!("CARGO_BIN_EXE_emr-eval"))
         .args(["report", "--out", dir, "--scenario", "warehouse-small", "--frames", "30"])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&run.stderr);
-    assert!(run.status.success(), "emr-demo report failed:\n{stderr}");
+    assert!(run.status.success(), "emr-eval report failed:\n{stderr}");
     // Progress went to stderr, run by run.
     assert!(stderr.contains("warehouse-small, EMR-FLOAM: done"), "{stderr}");
 

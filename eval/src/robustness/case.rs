@@ -9,10 +9,10 @@ use nalgebra::Point2;
 use sim::noise::SplitMix;
 use sim::{Scenario, SensorKind, SimConfig, SimError, Simulator, SpinInPlace, TrajectoryConfig, UnknownScenario};
 
-use crate::odometry::OdometryConfig;
-use crate::odometry::pipeline::{self, recording_options};
-use crate::recording::{self, RecordingError};
-use crate::source::{SourceError, SourceScan};
+use edge::odometry::OdometryConfig;
+use edge::odometry::pipeline::{self, recording_options};
+use edge::recording::{self, RecordingError};
+use edge::source::{SourceError, SourceScan};
 
 /// One hard input: scans with their ground truth, and how the odometry is to be set up for them.
 #[derive(Clone, Debug)]

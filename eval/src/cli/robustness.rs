@@ -1,12 +1,12 @@
-//! `emr-edge bench robustness`: the odometry robustness matrix (issue 13), ours beside KISS-ICP.
+//! `emr-eval robustness`: the odometry robustness matrix, ours beside KISS-ICP.
 
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use cloud::stopwatch::Stopwatch;
-use edge::robustness::{self, HoldCriterion, KissConfig, Row, RunOptions, Table};
+use eval::robustness::{self, HoldCriterion, KissConfig, Row, RunOptions, Table};
 
-/// Arguments of `emr-edge bench robustness`.
+/// Arguments of `emr-eval robustness`.
 #[derive(clap::Args, Debug)]
 pub struct RobustnessArgs {
     /// Run KISS-ICP beside ours, failing if python3 cannot import kiss_icp [default: when it can].
@@ -31,7 +31,7 @@ pub struct RobustnessArgs {
     data: PathBuf,
 }
 
-/// `emr-edge bench robustness`.
+/// `emr-eval robustness`.
 pub fn robustness(args: RobustnessArgs) -> Result<()> {
     let planned: Vec<_> = robustness::matrix(&args.data, args.quick)
         .into_iter()

@@ -1,4 +1,4 @@
-//! The odometry robustness matrix (issue 13): the classes of hard input the odometry meets on real
+//! The odometry robustness matrix: the classes of hard input the odometry meets on real
 //! recordings, reproduced on data we have, run with our odometry and with KISS-ICP side by side.
 //!
 //! - [`case`]: a [`Case`] is scans with ground truth and how to run the odometry on them; its
@@ -10,7 +10,7 @@
 //! - [`export`] writes a case in the KITTI layout, [`kiss`] runs KISS-ICP on it.
 //! - [`report`]: the table.
 //!
-//! [`run_case`] puts them together for one case; `emr-edge bench robustness` loops over the matrix.
+//! [`run_case`] puts them together for one case; `emr-eval robustness` loops over the matrix.
 
 pub mod case;
 pub mod export;

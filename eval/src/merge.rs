@@ -1,19 +1,19 @@
-//! Benchmark of the pairwise registration on two point-cloud files (for `emr-station bench merge`).
+//! Benchmark of the station's pairwise registration on two point-cloud files (`emr-eval merge`).
 //!
 //! Runs [`register`] several times on the same pair, reports the wall time of each run, the step
 //! timing, the scores and, given a reference transform, the error against it.
 
 use std::fmt;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Duration;
 
 use cloud::PointCloud;
-use cloud::formats::{FormatError, read_cloud};
-use cloud::se3::{PoseError, from_matrix, pose_error};
+use cloud::formats::{FormatError, TransformError, read_cloud, read_transform};
+use cloud::se3::{PoseError, pose_error};
 use cloud::stopwatch::timed;
-use nalgebra::{Isometry3, Matrix4};
+use nalgebra::Isometry3;
 
-use super::{PairwiseConfig, PairwiseError, PairwiseOutcome, register};
+use station::pairwise::{PairwiseConfig, PairwiseError, PairwiseOutcome, register};
 
 /// Why the benchmark could not run.
 #[derive(Debug, thiserror::Error)]
@@ -21,14 +21,9 @@ pub enum BenchError {
     /// A cloud file could not be read.
     #[error(transparent)]
     Read(#[from] FormatError),
-    /// The reference transform file is unreadable or not a rigid 4x4 matrix.
-    #[error("{path}: {reason}")]
-    Transform {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong with it.
-        reason: String,
-    },
+    /// The reference transform file is unreadable or not a rigid transform.
+    #[error(transparent)]
+    Transform(#[from] TransformError),
     /// The registration itself failed.
     #[error(transparent)]
     Pairwise(#[from] PairwiseError),
@@ -95,22 +90,6 @@ pub fn bench_merge_files(
     let t = read_cloud(target)?.cloud;
     let reference = reference.map(read_transform).transpose()?;
     Ok(bench_pairwise(&s, &t, config, runs, reference.as_ref())?)
-}
-
-/// Reads a rigid transform: 16 numbers (a 4x4 matrix, row-major) or 12 (a KITTI `[R | t]` row).
-pub fn read_transform(path: &Path) -> Result<Isometry3<f64>, BenchError> {
-    let fail = |reason: String| BenchError::Transform { path: path.to_owned(), reason };
-    let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
-    let values: Vec<f64> =
-        text.split_whitespace().map(str::parse).collect::<Result<_, _>>().map_err(|e| fail(format!("{e}")))?;
-    if values.len() != 16 && values.len() != 12 {
-        return Err(fail(format!("{} numbers, expected 16 (4x4) or 12 (3x4)", values.len())));
-    }
-    let mut m = Matrix4::identity();
-    for (i, v) in values.iter().take(12).enumerate() {
-        m[(i / 4, i % 4)] = *v;
-    }
-    from_matrix(&m).ok_or_else(|| fail("not a rigid transform".into()))
 }
 
 impl fmt::Display for PairwiseBench {

@@ -1,11 +1,9 @@
-//! `emr-edge bench sim`: scans per second of the simulator, on one core and on all cores.
+//! `emr-eval sim`: scans per second of the simulator, on one core and on all cores.
 
 use std::fmt;
 use std::time::Instant;
 
-use crate::scenario::Scenario;
-use crate::sensor::SensorKind;
-use crate::simulator::{SimConfig, SimError, Simulator};
+use sim::{Scenario, SensorKind, SimConfig, SimError, Simulator};
 
 /// Why the benchmark could not run.
 #[derive(Debug, thiserror::Error)]

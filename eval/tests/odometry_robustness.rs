@@ -1,13 +1,13 @@
-//! The odometry on the classes of hard input that lost it before (issue 13), judged against ground
+//! The odometry on the classes of hard input that lost it before, judged against ground
 //! truth: a recording cut mid-drive with every second scan, a fast turn in place, scans whose
 //! points carry no order. The matrix with more classes and KISS-ICP beside it is
-//! `emr-edge bench robustness`.
+//! `emr-eval robustness`.
 
-use edge::robustness::{Case, HoldCriterion, Motion, SimCase, kitti_every, run_ours, shuffled, simulated};
+use eval::robustness::{Case, HoldCriterion, Motion, SimCase, kitti_every, run_ours, shuffled, simulated};
 use sim::SensorKind;
 
 /// Our odometry on `case`: its verdict, with the case named on failure.
-fn held(case: &Case) -> edge::robustness::Verdict {
+fn held(case: &Case) -> eval::robustness::Verdict {
     let outcome = run_ours(case, &HoldCriterion::default());
     let verdict = outcome.verdict.unwrap_or_else(|e| panic!("{}: {e}", case.name));
     eprintln!(

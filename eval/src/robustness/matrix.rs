@@ -1,4 +1,4 @@
-//! The default matrix of issue 13: which cases, as recipes built only when run (`--case` filters
+//! The default matrix: which cases, as recipes built only when run (`--case` filters
 //! before anything is read or simulated).
 
 use std::path::{Path, PathBuf};

@@ -1,4 +1,4 @@
-//! `emr-edge bench odometry`: time per scan of the library's odometry loop on scans held in memory.
+//! `emr-eval odometry`: time per scan of the library's odometry loop on scans held in memory.
 
 use std::fmt;
 
@@ -9,7 +9,7 @@ use edge::source::SourceScan;
 
 use super::median;
 
-/// Figures of `emr-edge bench odometry`.
+/// Figures of `emr-eval odometry`.
 pub struct OdometryReport {
     /// Scans per run.
     pub scans: usize,
