@@ -10,7 +10,7 @@
 #   python3 scripts/compare_kiss_icp.py /tmp/ws1 /tmp/kiss-ws1 --deskew
 #   ./target/release/emr-edge eval --gt /tmp/ws1/poses.txt --est /tmp/kiss-ws1/poses_kitti.txt
 # Ours on the same scans (read into memory first, registration timed on one thread):
-#   ./target/release/emr-edge bench odometry /tmp/ws1 --runs 3
+#   ./target/release/emr-eval odometry /tmp/ws1 --runs 3
 import argparse, glob, os, time
 
 import numpy as np

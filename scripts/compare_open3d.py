@@ -21,7 +21,7 @@
 #   ./target/release/examples/sim_maps warehouse-large /tmp/simcmp/wl       # map0.ply map1.ply truth_0_1.txt
 #   ./target/release/examples/sim_maps campus /tmp/simcmp/campus
 #   # ours: timing + error (truth_0_1 maps map1 into map0's frame)
-#   ./target/release/emr-station bench merge /tmp/simcmp/wl/map1.ply /tmp/simcmp/wl/map0.ply \
+#   ./target/release/emr-eval merge /tmp/simcmp/wl/map1.ply /tmp/simcmp/wl/map0.ply \
 #       --reference /tmp/simcmp/wl/truth_0_1.txt --preset indoor --runs 3
 #   ./target/release/emr-station align /tmp/simcmp/wl/map1.ply /tmp/simcmp/wl/map0.ply \
 #       --method global --preset indoor > /tmp/simcmp/wl/ours.txt
@@ -33,7 +33,7 @@
 #   # (campus: the same with /tmp/simcmp/campus, --preset outdoor, --voxel 0.4 / 0.5)
 #   # KITTI 08 reverse revisit (reference good to ~0.1 m only):
 #   D=../shared/data/kitti08_revisit
-#   ./target/release/emr-station bench merge $D/001500.bin $D/000720.bin \
+#   ./target/release/emr-eval merge $D/001500.bin $D/000720.bin \
 #       --reference $D/T_000720_001500.txt --runs 3
 #   python3 scripts/compare_open3d.py $D/001500.bin $D/000720.bin $D/T_000720_001500.txt --voxel 0.5 --runs 3
 # --runs 0 runs no Open3D at all (only --ours-transform is checked).

@@ -1,6 +1,6 @@
 # small_gicp (PyPI 1.0.1) on gicp_pair: median (min) ms over N runs, error vs the reference.
 # Run: pip install small_gicp==1.0.1 && python3 scripts/compare_small_gicp.py 30
-# Compare with: ./target/release/emr-edge bench gicp --runs 30 (from /work/main)
+# Compare with: ./target/release/emr-eval gicp --runs 30 (from /work/main)
 import numpy as np, small_gicp, time, sys
 d='/work/shared/data/gicp_pair/'
 def readply(p):

@@ -10,7 +10,7 @@
 #   python3 scripts/gtsam_posegraph.py ../shared/data/posegraph/parking-garage.g2o
 # Ours on the same file:
 #   ./target/release/emr-edge posegraph ../shared/data/posegraph/parking-garage.g2o --out /tmp/pg.g2o
-#   ./target/release/emr-edge bench posegraph
+#   ./target/release/emr-eval posegraph
 import argparse
 import statistics
 import time

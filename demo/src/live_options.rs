@@ -12,7 +12,7 @@ use live::{Live, Sinks};
 #[derive(Args, Debug)]
 pub struct LiveArgs {
     /// Serve the live view over the Foxglove WebSocket protocol on this address: open
-    /// ws://ADDR in Foxglove to watch the maps merge (topics in the README).
+    /// ws://ADDR in Foxglove to watch the maps merge (topics in docs/watching.md).
     #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:8765")]
     foxglove: SocketAddr,
     /// Serve no live view.

@@ -1,4 +1,4 @@
-//! The motions and sensors the odometry robustness matrix needs (issue 13): sensor rates, turning
+//! The motions and sensors the odometry robustness matrix needs: sensor rates, turning
 //! in place, a car on the campus roads, against their exact definitions.
 
 use std::f64::consts::PI;

@@ -261,8 +261,7 @@ fn the_coarse_preset_keeps_the_indoor_verdicts() {
     let report = merge(&aisles.maps, &config).unwrap();
     assert_eq!(report.merged(), 1, "only the reference: {}", describe(&report));
     // Refused for the reason the rule gives: the alternative hall holds more than half the upright
-    // support (0.73 on these maps; the live station's coarser keyframe maps sit nearer 0.5, see
-    // the README).
+    // support (0.73 on these maps; the live station's coarser keyframe maps sit nearer 0.5).
     let support = ambiguous_support(&report);
     println!("aisles, coarse preset: alternative support {support:.2}");
     assert!(support > 0.5, "support {support:.2}");

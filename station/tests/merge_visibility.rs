@@ -323,7 +323,7 @@ fn a_tracked_door_holds_where_vgicp_does_not_narrow_the_gap() {
     // VGICP started at its own optimum moves a few millimetres and the gap between the maps changes
     // by a ten-thousandth either way; when a gap that did not narrow counted as a lost link, the
     // search that followed drew the look-alike hall and the east robot left the published map in
-    // half the demo runs (2026-11-29). And the gap must judge the refinement where the maps share
+    // half the demo runs. And the gap must judge the refinement where the maps share
     // only a door: a point-to-point gap kept the link 7.5 cm from the truth (keyframes every 4th
     // sweep), a capped gap over all points 5.0 cm (every 6th), against VGICP's centimetre. Both
     // keyframe strides, so both samplings of the maps.

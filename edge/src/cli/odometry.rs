@@ -35,7 +35,7 @@ pub struct OdometryArgs {
     #[arg(long, overrides_with = "loops")]
     no_loops: bool,
     /// Record the run to this MCAP file for Foxglove: per scan the sensor frame (/tf), per
-    /// keyframe its cloud, the trajectory, the loops and a status (topics in the README), stamped
+    /// keyframe its cloud, the trajectory, the loops and a status (topics in docs/watching.md), stamped
     /// with the scans' times.
     #[arg(long, value_name = "FILE.mcap")]
     record: Option<PathBuf>,

@@ -77,7 +77,7 @@ pub struct VerifyConfig {
     /// times the coarse stage's coarsest correspondences (scale it with them): started 2-16 m off
     /// the truth in 8 directions, the verification found the true pose of KITTI 08's reverse
     /// revisit from up to 12 m (4 of 8 starts there), of simulated revisits from up to 10-12 m, and
-    /// from 16 m never (0 of 32 starts, 2026-11-28).
+    /// from 16 m never (0 of 32 starts).
     pub reach_m: f64,
 }
 

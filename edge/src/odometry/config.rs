@@ -1,8 +1,8 @@
 //! The odometry's configuration: one struct per stage, each field documented with its default,
 //! and the two presets the command line offers ([`OdometryConfig::preset`]).
 //!
-//! The figures that justify a default come from runs on the simulator and KITTI; the README lists
-//! them with the command that reproduces each, so the comments here only say why.
+//! The figures that justify a default come from runs on the simulator and KITTI; docs/benchmarks.md
+//! lists them with the command that reproduces each, so the comments here only say why.
 
 use cloud::Preset;
 use cloud::gauss_newton::RotationScale;
@@ -50,7 +50,7 @@ pub struct FeatureConfig {
     /// along the surface and tilt the map (warehouse-small robot 2 took 0.25 deg of pitch in its
     /// first 3 m from a box face seen at 4 deg). Default 20; 0 turns the test off, as the outdoor
     /// preset does: outdoors edges are few, and without the grazing ones a car at 10 m/s lost its
-    /// way in the robustness matrix (docs/figures.md).
+    /// way in the robustness matrix (docs/decisions/grazing-edge-test-outdoors-and-variants.md).
     pub edge_min_incidence_deg: f32,
     /// Edge features are thinned to one per voxel of this size (m), as F-LOAM downsamples its
     /// input to the map resolution. Default 0.2 m indoor, 0.4 m outdoor.
@@ -153,8 +153,8 @@ pub struct SolverConfig {
     /// (the robustness matrix's 2 Hz sensor, the car at 20 m/s). Default 0 (off) in both
     /// presets: at 0.02 m it lowered the unaligned error of 19 of 21 indoor runs (six robots,
     /// three or four noise seeds; 27 % in sum) but moved the campus robots either way, and the
-    /// demo's door placement of warehouse-small robot 2 with it (docs/figures.md, "The narrow
-    /// polish, indoors").
+    /// demo's door placement of warehouse-small robot 2 with it
+    /// (docs/decisions/narrow-kernel-polish-of-odometry.md).
     pub polish_huber: f64,
     /// Edge weight w₁ = σ / (σ + s): sharper edges count more. Default s = 0.1 (the edge threshold).
     pub edge_weight_scale: f32,
@@ -301,7 +301,7 @@ impl OdometryConfig {
     /// and edge lines only when they rise 60° or more: indoors most shallow "lines" are floor-object
     /// junctions and shelf fronts, which a spinning LiDAR places in height only to its beam spacing,
     /// and they bias the pitch. The outdoor preset keeps lines from 30° up: every line biases the
-    /// roll on sloped ground (30° and 60° measure alike today; the README has both).
+    /// roll on sloped ground (30° and 60° measure alike: docs/decisions/odometry-preset-values.md).
     pub fn indoor() -> Self {
         OdometryConfig {
             method: Method::Floam,

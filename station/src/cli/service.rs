@@ -49,7 +49,7 @@ pub struct RunArgs {
     max_delay_ms: u64,
     /// Serve the live view over the Foxglove WebSocket protocol on this address (e.g.
     /// 127.0.0.1:8765; open it in Foxglove as ws://ADDR): the global map, the robots' frames,
-    /// trajectories, keyframes, loops and statuses (topics in the README).
+    /// trajectories, keyframes, loops and statuses (topics in docs/watching.md).
     #[arg(long, value_name = "ADDR")]
     foxglove: Option<SocketAddr>,
     /// Record the same topics to this MCAP file.

@@ -406,7 +406,7 @@ fn free_space_acceptance(
 /// the caller then runs the global registration again, with all its checks. A refinement that
 /// converges nearby without narrowing the gap ([`Refinement::Held`]) keeps the previous transform:
 /// counting it as lost dropped a door-only link in half the warehouse-small demo runs, and the
-/// search that followed drew the look-alike hall (2026-11-29).
+/// search that followed drew the look-alike hall.
 ///
 /// Tracking cannot swap the link for a repetitive alternative: those lie at least
 /// [`MergeConfig::ambiguity_distance`] away, beyond the refinement's reach, and the previous

@@ -399,11 +399,9 @@ impl Round {
     /// Step 2a: holds back the pairs waiting for a search that are not worth one: two placed maps
     /// whose places show no candidate overlap (a link between them would only duplicate what
     /// places both already). A settling merge searches every changed pair, and there the gate saves
-    /// the most (the 16-robot load caught up in 48 s instead of 68). While streaming it was once
-    /// left out, when comparing places ran inside the merges (0.3-0.6 s more per 16-robot merge);
-    /// in the rounds beside them it changed nothing measurable (2026-11-28, 16 / 32 robots: merge
-    /// p95 640 / 1,050 ms against 674 / 1,114, latency p95 2.4 / 2.8 s against 2.5 / 2.9, the same
-    /// placements), and a search is then never spent on what cannot add a placement. A pair with
+    /// the most (the 16-robot load caught up in 48 s instead of 68). While streaming it changes
+    /// nothing measurable (docs/decisions/place-gating-of-pairs-with-an-unplaced-map.md), and a
+    /// search is then never spent on what cannot add a placement. A pair with
     /// an unplaced map is searched even without a candidate: two maps can overlap where no two
     /// keyframes stand at one place (one robot saw from afar what the other drove through; the
     /// 16-robot campus load had a robot linked only that way). A pair once linked is never held
