@@ -155,7 +155,7 @@ fn loop_closure_files_are_written_by_default_and_not_with_no_loops() {
     let keyframes = stats["loops"]["keyframes"].as_u64().unwrap();
     assert!(keyframes >= 2, "{stats}");
     // The graph: a vertex per keyframe, an odometry edge between consecutive ones.
-    let graph = cloud::pose_graph::g2o::parse(&read(with.join("graph.g2o"))).unwrap();
+    let graph = cloud::pose_graph::g2o::parse(&read(with.join("graph.g2o"))).unwrap().graph;
     assert_eq!((graph.poses().len() as u64, graph.edges().len() as u64), (keyframes, keyframes - 1));
     for file in ["loops.json", "graph.g2o", "poses_odometry_kitti.txt"] {
         assert!(!without.join(file).exists(), "{file} written with --no-loops");

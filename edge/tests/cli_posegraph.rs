@@ -27,11 +27,11 @@ fn posegraph_writes_the_graph_whose_error_it_prints() {
     assert!((initial - 83894.3).abs() < 0.1, "{stdout}");
     assert!(figure(&stdout, "iterations") >= 1.0 && figure(&stdout, "optimiser") > 0.0, "{stdout}");
     // The written poses cost what was printed (six decimals), and the graph is the input's.
-    let written = g2o::parse(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let written = g2o::parse(&std::fs::read_to_string(&out).unwrap()).unwrap().graph;
     let error = written.error(&PoseGraphConfig::least_squares());
     assert!((error - printed).abs() < 1e-6, "file {error} vs printed {printed}");
     assert!(printed <= 517.925 * (1.0 + 1e-4), "{stdout}");
-    let original = g2o::parse(&std::fs::read_to_string(&input).unwrap()).unwrap();
+    let original = g2o::parse(&std::fs::read_to_string(&input).unwrap()).unwrap().graph;
     assert_eq!((written.ids(), written.edges()), (original.ids(), original.edges()));
 }
 
@@ -56,4 +56,27 @@ fn posegraph_errors_name_the_file() {
     let good = testkit::shared_data("posegraph/smallGrid3D.g2o");
     let text = stderr(&good, &["--kernel", "cauchy:-1"]);
     assert!(text.contains("invalid kernel"), "{text}");
+}
+
+#[test]
+fn an_indefinite_information_matrix_is_optimised_and_warned_about_with_the_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("indefinite.g2o");
+    // Two edges between two poses; the second's translation block [[1, 2], [2, 1]] is indefinite.
+    let ok = "1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 4 0 0 4 0 4";
+    let bad = "1 2 0 0 0 0 1 0 0 0 0 1 0 0 0 4 0 0 4 0 4";
+    let text = format!(
+        "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 0.5 0 0 0 0 0 1\nFIX 0\n\
+         EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 {ok}\nEDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 {bad}\n"
+    );
+    std::fs::write(&input, text).unwrap();
+    let out = dir.path().join("out.g2o");
+    let run = emr_edge(&["posegraph", input.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    assert!(stderr.contains("1 of 2 edges had an information matrix that is not positive semi-definite"), "{stderr}");
+    assert!(stderr.contains("first on line 5"), "{stderr}");
+    // Both edges say pose 1 is 1 m along x: the optimum puts it there.
+    let written = g2o::parse(&std::fs::read_to_string(&out).unwrap()).unwrap().graph;
+    assert!((written.poses()[1].translation.vector.x - 1.0).abs() < 1e-6, "{:?}", written.poses()[1]);
 }

@@ -12,13 +12,18 @@
 //! is used as it stands. Vertex ids may be any integers; they map to pose indices in the order the
 //! vertices appear and are kept for writing. An edge between consecutive poses (index `b = a + 1`)
 //! is [`EdgeKind::Odometry`], any other [`EdgeKind::Loop`] (the format does not say).
+//!
+//! An information matrix with a negative eigenvalue (published benchmarks carry a few, from
+//! rounding a covariance's inverse to 6 digits) is accepted as GTSAM's reader accepts it, and
+//! repaired to the nearest positive semi-definite matrix in the Frobenius norm (Higham 1988: its
+//! negative eigenvalues set to zero); [`G2o::repaired`] lists each such edge, for the caller to warn.
 
 use std::collections::HashMap;
 use std::fmt::Write;
 
 use nalgebra::{Isometry3, Matrix6, Quaternion, Translation3, UnitQuaternion};
 
-use super::{Edge, EdgeKind, PoseGraph, PoseGraphError};
+use super::{Edge, EdgeKind, PoseGraph, PoseGraphError, nearest_psd};
 
 const VERTEX: &str = "VERTEX_SE3:QUAT";
 const EDGE: &str = "EDGE_SE3:QUAT";
@@ -59,7 +64,7 @@ pub enum G2oError {
         /// The id.
         id: i64,
     },
-    /// An edge the graph refuses (self loop, non-finite, information not PSD).
+    /// An edge the graph refuses (self loop, non-finite values).
     #[error("line {line}: {source}")]
     Edge {
         /// Line number.
@@ -69,22 +74,45 @@ pub enum G2oError {
     },
 }
 
+/// A graph read from g2o text, and the edges whose information matrix had to be repaired.
+#[derive(Clone, Debug)]
+pub struct G2o {
+    /// The graph.
+    pub graph: PoseGraph,
+    /// Edges whose information matrix was not positive semi-definite, in file order.
+    pub repaired: Vec<Repaired>,
+}
+
+/// An edge whose information matrix had a negative eigenvalue, set to zero.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Repaired {
+    /// Line number (1-based).
+    pub line: usize,
+    /// The edge's pose indices.
+    pub from: usize,
+    /// The edge's pose indices.
+    pub to: usize,
+    /// The most negative eigenvalue of the matrix as written.
+    pub min_eigenvalue: f64,
+}
+
 /// Reads a graph from g2o text. Blank lines and lines starting with `#` are skipped.
-pub fn parse(text: &str) -> Result<PoseGraph, G2oError> {
-    let mut reader = Reader { graph: PoseGraph::new(), index_of: HashMap::new() };
+pub fn parse(text: &str) -> Result<G2o, G2oError> {
+    let mut reader = Reader { graph: PoseGraph::new(), index_of: HashMap::new(), repaired: Vec::new() };
     for (n, line) in text.lines().enumerate() {
         let mut words = line.split_whitespace();
         if let Some(tag) = words.next().filter(|t| !t.starts_with('#')) {
             reader.line(n + 1, tag, &words.collect::<Vec<_>>())?;
         }
     }
-    Ok(reader.graph)
+    Ok(G2o { graph: reader.graph, repaired: reader.repaired })
 }
 
-/// The graph read so far, and the pose index of each vertex id.
+/// The graph read so far, the pose index of each vertex id, and the edges repaired.
 struct Reader {
     graph: PoseGraph,
     index_of: HashMap<i64, usize>,
+    repaired: Vec<Repaired>,
 }
 
 impl Reader {
@@ -105,7 +133,12 @@ impl Reader {
                 let values = numbers::<28>(values).map_err(malformed)?;
                 let measurement = pose_from(values[..7].try_into().expect("7 of 28 values")).map_err(malformed)?;
                 let kind = if to == from + 1 { EdgeKind::Odometry } else { EdgeKind::Loop };
-                let edge = Edge { from, to, measurement, information: upper_triangle(&values[7..]), kind };
+                let written = upper_triangle(&values[7..]);
+                let (information, min_eigenvalue) = nearest_psd(&written);
+                if information != written {
+                    self.repaired.push(Repaired { line, from, to, min_eigenvalue });
+                }
+                let edge = Edge { from, to, measurement, information, kind };
                 self.graph.add_edge(edge).map_err(|source| G2oError::Edge { line, source })?;
             }
             (FIX, ids) => {
@@ -220,14 +253,15 @@ mod tests {
             &format!("EDGE_SE3:QUAT 10 7 2 0 0 0 0 0 1 {INFO}"),
             "FIX -3",
         ]);
-        let graph = parse(&input).unwrap();
+        let graph = parse(&input).unwrap().graph;
+        assert!(parse(&input).unwrap().repaired.is_empty());
         assert_eq!(graph.ids(), &[10, -3, 7]);
         assert_eq!(graph.poses()[1].rotation.coords.w, 1.0, "the quaternion (0 0 0 2) is normalised");
         let kinds: Vec<_> = graph.edges().iter().map(|e| (e.from, e.to, e.kind)).collect();
         assert_eq!(kinds, [(0, 1, EdgeKind::Odometry), (0, 2, EdgeKind::Loop)]);
         assert_eq!(graph.edges()[0].information[(3, 3)], 4.0);
         assert!(graph.is_fixed(1) && !graph.is_fixed(0), "FIX moves the gauge");
-        let again = parse(&write(&graph)).unwrap();
+        let again = parse(&write(&graph)).unwrap().graph;
         assert_eq!(again, graph);
     }
 
@@ -256,14 +290,35 @@ mod tests {
     }
 
     #[test]
-    fn an_information_matrix_that_is_not_psd_is_refused() {
-        let bad = "1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 4 0 0 4 0 -4";
+    fn an_information_matrix_that_is_not_psd_is_repaired_and_reported() {
+        // The translation block [[1, 2], [2, 1]] has eigenvalues 3 and -1.
+        let bad = "1 2 0 0 0 0 1 0 0 0 0 1 0 0 0 4 0 0 4 0 4";
         let input = text(&[
             "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1",
             "VERTEX_SE3:QUAT 1 0 0 0 0 0 0 1",
             &format!("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 {bad}"),
+            &format!("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 {INFO}"),
         ]);
-        let error = parse(&input).unwrap_err().to_string();
-        assert_eq!(error, "line 3: edge 0 -> 1: information matrix not symmetric positive semi-definite");
+        let read = parse(&input).unwrap();
+        assert_eq!(read.repaired.len(), 1, "{:?}", read.repaired);
+        let r = read.repaired[0];
+        assert_eq!((r.line, r.from, r.to), (3, 0, 1));
+        assert!((r.min_eigenvalue + 1.0).abs() < 1e-12, "{r:?}");
+        // Nearest PSD: the -1 eigenvalue (direction (1, -1)/sqrt 2) dropped: [[1.5, 1.5], [1.5, 1.5]].
+        let m = read.graph.edges()[0].information;
+        for (rc, expected) in [((0, 0), 1.5), ((0, 1), 1.5), ((1, 1), 1.5), ((2, 2), 1.0), ((5, 5), 4.0)] {
+            assert!((m[rc] - expected).abs() < 1e-12, "{rc:?}: {m}");
+        }
+        assert_eq!(
+            read.graph.edges()[1].information,
+            upper_triangle(&[1., 0., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1., 0., 0., 0., 4., 0., 0., 4., 0., 4.])
+        );
+        // Non-finite values are still refused.
+        let nan = text(&[
+            "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1",
+            "VERTEX_SE3:QUAT 1 0 0 0 0 0 0 1",
+            &format!("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 NaN {}", &INFO[2..]),
+        ]);
+        assert!(parse(&nan).unwrap_err().to_string().starts_with("line 3: "));
     }
 }

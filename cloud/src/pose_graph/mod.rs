@@ -345,6 +345,24 @@ impl PoseGraph {
     }
 }
 
+/// The nearest positive semi-definite matrix to a symmetric `m` in the Frobenius norm: `m` itself
+/// when it already is one (to [`is_symmetric_psd`]'s rounding), else its eigen-decomposition with
+/// the negative eigenvalues set to zero (Higham 1988); and `m`'s smallest eigenvalue.
+/// A matrix with a non-finite entry is returned as it is, for [`PoseGraph::add_edge`] to refuse.
+pub(crate) fn nearest_psd(m: &Matrix6<f64>) -> (Matrix6<f64>, f64) {
+    if !m.iter().all(|v| v.is_finite()) {
+        return (*m, f64::NAN);
+    }
+    let eigen = SymmetricEigen::new(m.symmetric_part());
+    let min = eigen.eigenvalues.min();
+    if is_symmetric_psd(m) {
+        return (*m, min);
+    }
+    let clamped = eigen.eigenvalues.map(|v| v.max(0.0));
+    let repaired = eigen.eigenvectors * Matrix6::from_diagonal(&clamped) * eigen.eigenvectors.transpose();
+    (repaired.symmetric_part(), min)
+}
+
 /// Symmetric to rounding and no eigenvalue below −1e-9 of the largest magnitude.
 fn is_symmetric_psd(m: &Matrix6<f64>) -> bool {
     let scale = m.amax().max(f64::MIN_POSITIVE);

@@ -36,10 +36,23 @@ pub fn posegraph(args: &PosegraphArgs) -> Result<()> {
     Ok(())
 }
 
-/// The graph of a g2o file; errors name the file (and the parser the line).
+/// The graph of a g2o file; errors name the file (and the parser the line). Edges whose
+/// information matrix was repaired are counted in a warning.
 pub fn read(path: &Path) -> Result<PoseGraph> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    g2o::parse(&text).map_err(|e| anyhow!("{}: {e}", path.display()))
+    let read = g2o::parse(&text).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    if let Some(first) = read.repaired.first() {
+        tracing::warn!(
+            "{}: {} of {} edges had an information matrix that is not positive semi-definite (first on line {}, \
+             smallest eigenvalue {:.3e}); their negative eigenvalues were set to zero",
+            path.display(),
+            read.repaired.len(),
+            read.graph.edges().len(),
+            first.line,
+            first.min_eigenvalue
+        );
+    }
+    Ok(read.graph)
 }
 
 fn print_report(graph: &PoseGraph, report: &Report) {

@@ -50,7 +50,7 @@ pub fn posegraph(data: &Path, poses: usize, runs: usize, write_synthetic: Option
     for file in FILES {
         let path = data.join(file);
         let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
-        let graph = g2o::parse(&text).with_context(|| format!("{}", path.display()))?;
+        let graph = g2o::parse(&text).with_context(|| format!("{}", path.display()))?.graph;
         rows.push(measure(file.to_owned(), &graph, &least_squares, runs, None)?);
         tracing::info!(file, "measured");
     }
