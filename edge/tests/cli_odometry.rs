@@ -217,3 +217,55 @@ fn the_seed_changes_the_simulated_noise_and_nothing_else() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--seed"), "{}", String::from_utf8_lossy(&bad.stderr));
 }
+
+/// The run's own figures against a reference: a run that did not track (an aligned ATE above 1 %
+/// of the path) must say so in stats.json and on stderr; a run that tracked counts no scan it
+/// could not fit.
+fn health_against_the_reference(
+    data: &str,
+    reference: &std::path::Path,
+    args: &[&str],
+) -> (f64, serde_json::Value, String) {
+    use cloud::trajectory::{Trajectory, ate};
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let mut all = vec!["odometry", data, "--out", out.to_str().unwrap(), "--no-loops"];
+    all.extend(args);
+    let run = emr_edge(&all);
+    let stderr = String::from_utf8_lossy(&run.stderr).into_owned();
+    assert!(run.status.success(), "{stderr}");
+    let estimate = Trajectory::parse_kitti(&std::fs::read_to_string(out.join("poses_kitti.txt")).unwrap()).unwrap();
+    let truth = Trajectory::parse_kitti(&std::fs::read_to_string(reference).unwrap()).unwrap();
+    let error = ate(&truth.poses, &estimate.poses, true).unwrap().rmse / truth.length();
+    let stats = serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
+    (error, stats, stderr)
+}
+
+#[test]
+fn a_run_that_does_not_track_says_so() {
+    // The handheld solid-state run (no rings, ~70 deg view) against FAST-LIO2's trajectory.
+    let livox = testkit::shared_data("livox_hku2");
+    let scans = livox.join("scans");
+    let (error, stats, stderr) =
+        health_against_the_reference(scans.to_str().unwrap(), &livox.join("odom_poses.txt"), &[]);
+    let unhealthy = stats["unfitted_scans"].as_u64().unwrap() + stats["recoveries"]["lost"].as_u64().unwrap();
+    println!(
+        "livox: aligned ATE {:.1} % of the path; unfitted {}, lost {}",
+        error * 100.0,
+        stats["unfitted_scans"],
+        stats["recoveries"]["lost"]
+    );
+    if error > 0.01 {
+        assert!(unhealthy > 0, "ATE {:.1} % of the path, reported healthy: {stats}", error * 100.0);
+        assert!(stderr.contains("could not be fitted") || stderr.contains("were lost"), "{stderr}");
+    }
+    // The shared KITTI frames, where the odometry tracks: nothing unfitted, nothing lost.
+    let kitti = kitti00();
+    let (error, stats, _) = health_against_the_reference(
+        kitti.to_str().unwrap(),
+        &kitti.join("poses_velodyne.txt"),
+        &["--preset", "outdoor", "--no-deskew"],
+    );
+    assert!(error < 0.01, "KITTI 00: aligned ATE {:.2} % of the path", error * 100.0);
+    assert_eq!((stats["unfitted_scans"].as_u64(), stats["recoveries"]["lost"].as_u64()), (Some(0), Some(0)), "{stats}");
+}

@@ -387,6 +387,7 @@ impl OdometryPipeline {
             Ok(())
         })?;
         let summary = pass.stats.summary();
+        warn_unhealthy(&summary);
         let peak_rss_mb = peak_rss_mb();
         let rss_mb = memory.finish();
         let mut estimate = pass.estimate.clone();
@@ -423,6 +424,38 @@ impl OdometryPipeline {
     }
 }
 
+/// Says so when a run's figures show it did not track ([`health_warnings`]).
+pub fn warn_unhealthy(summary: &RunSummary) {
+    for warning in health_warnings(summary) {
+        tracing::warn!("{warning}");
+    }
+}
+
+/// What a run's figures show it did not do well: scans nothing measured, scans lost, or a map that
+/// stopped growing (one keyframe in a hundred scans or more).
+pub fn health_warnings(summary: &RunSummary) -> Vec<String> {
+    let frames = summary.frames;
+    let mut warnings = Vec::new();
+    if summary.unfitted_scans > 0 {
+        warnings.push(format!(
+            "{} of {frames} scans could not be fitted (too few feature matches): their poses are the motion \
+             model's extrapolation, not measurements",
+            summary.unfitted_scans
+        ));
+    }
+    if summary.recoveries.lost > 0 {
+        warnings
+            .push(format!("{} of {frames} scans were lost (no start fitted the map well)", summary.recoveries.lost));
+    }
+    if frames >= 100 && summary.keyframes <= 1 {
+        warnings.push(format!(
+            "{} keyframe(s) in {frames} scans: the map did not grow (a sensor at rest, or odometry that is stuck)",
+            summary.keyframes
+        ));
+    }
+    warnings
+}
+
 /// One scan done, as [`OdometryPipeline::run`] shows it.
 pub struct ScanDone<'a> {
     /// Scans registered so far.
@@ -447,4 +480,26 @@ fn thread_cpu_ms() -> f64 {
     // kernel always knows.
     unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
     t.tv_sec as f64 * 1e3 + t.tv_nsec as f64 * 1e-6
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_run_without_measured_scans_or_a_growing_map_is_warned_about() {
+        let mut summary = RunStats::default().summary();
+        summary.frames = 300;
+        summary.keyframes = 30;
+        assert!(health_warnings(&summary).is_empty());
+        summary.keyframes = 1;
+        let stuck = "1 keyframe(s) in 300 scans: the map did not grow (a sensor at rest, or odometry that is stuck)";
+        assert_eq!(health_warnings(&summary), [stuck]);
+        summary.frames = 50;
+        assert!(health_warnings(&summary).is_empty(), "a short run may make one keyframe");
+        (summary.unfitted_scans, summary.recoveries.lost) = (3, 2);
+        let warnings = health_warnings(&summary);
+        assert!(warnings[0].starts_with("3 of 50 scans could not be fitted"), "{warnings:?}");
+        assert!(warnings[1].starts_with("2 of 50 scans were lost"), "{warnings:?}");
+    }
 }

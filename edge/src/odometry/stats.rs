@@ -11,6 +11,7 @@ pub struct RunStats {
     edges: Vec<f64>,
     planes: Vec<f64>,
     degenerate: usize,
+    unfitted: usize,
     keyframes: usize,
     conditioning: Vec<f64>,
     recoveries: Recoveries,
@@ -47,6 +48,10 @@ pub struct RunSummary {
     pub plane_features: Spread,
     /// Scans whose pose problem was ill-conditioned (the motion prior was kept along some direction).
     pub degenerate_frames: usize,
+    /// Scans after the first whose fit found fewer feature matches than the solver needs
+    /// (`solver.min_matches`): nothing measured their pose, which is the motion model's
+    /// extrapolation. Any is a warning; many mean the odometry is not tracking.
+    pub unfitted_scans: usize,
     /// Conditioning of the pose problem (smallest eigenvalue over the sum of weights): the lowest
     /// value, the 5th percentile and the median over the scans after the first.
     pub conditioning: Low,
@@ -69,6 +74,7 @@ impl RunStats {
         self.edges.push(frame.edges as f64);
         self.planes.push(frame.planes as f64);
         self.degenerate += usize::from(frame.degenerate);
+        self.unfitted += usize::from(self.ms.len() > 1 && frame.iterations == 0);
         self.keyframes += usize::from(frame.keyframe.is_some());
         self.recoveries.coarse += usize::from(frame.start == super::Start::Coarse);
         self.recoveries.global += usize::from(frame.start == super::Start::Global);
@@ -100,6 +106,7 @@ impl RunStats {
             edge_features: Spread::of(&self.edges),
             plane_features: Spread::of(&self.planes),
             degenerate_frames: self.degenerate,
+            unfitted_scans: self.unfitted,
             conditioning: Low::of(&self.conditioning),
             keyframes: self.keyframes,
             recoveries: self.recoveries,
