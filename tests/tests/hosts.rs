@@ -40,7 +40,8 @@ use tests::hosts::{self, EdgeReport, Hosts, Stored};
 use tests::*;
 
 const FLEET: &str = "hosts";
-/// The longest wait for any one thing (a summary, a global map).
+/// The longest wait for a summary or a progress line, and the longest a wait for a global map may
+/// go without the station taking in a keyframe.
 const TIMEOUT: Duration = Duration::from_secs(120);
 /// The zenoh port of the router, on its own address.
 const ZENOH_PORT: u16 = 7447;
