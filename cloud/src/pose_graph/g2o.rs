@@ -253,8 +253,9 @@ mod tests {
             &format!("EDGE_SE3:QUAT 10 7 2 0 0 0 0 0 1 {INFO}"),
             "FIX -3",
         ]);
-        let graph = parse(&input).unwrap().graph;
-        assert!(parse(&input).unwrap().repaired.is_empty());
+        let read = parse(&input).unwrap();
+        assert!(read.repaired.is_empty());
+        let graph = read.graph;
         assert_eq!(graph.ids(), &[10, -3, 7]);
         assert_eq!(graph.poses()[1].rotation.coords.w, 1.0, "the quaternion (0 0 0 2) is normalised");
         let kinds: Vec<_> = graph.edges().iter().map(|e| (e.from, e.to, e.kind)).collect();

@@ -355,7 +355,7 @@ pub(crate) fn nearest_psd(m: &Matrix6<f64>) -> (Matrix6<f64>, f64) {
     }
     let eigen = SymmetricEigen::new(m.symmetric_part());
     let min = eigen.eigenvalues.min();
-    if is_symmetric_psd(m) {
+    if psd_to_rounding(m, min) {
         return (*m, min);
     }
     let clamped = eigen.eigenvalues.map(|v| v.max(0.0));
@@ -365,11 +365,14 @@ pub(crate) fn nearest_psd(m: &Matrix6<f64>) -> (Matrix6<f64>, f64) {
 
 /// Symmetric to rounding and no eigenvalue below −1e-9 of the largest magnitude.
 fn is_symmetric_psd(m: &Matrix6<f64>) -> bool {
-    let scale = m.amax().max(f64::MIN_POSITIVE);
-    if (m - m.transpose()).amax() > 1e-9 * scale {
-        return false;
-    }
-    SymmetricEigen::new(m.symmetric_part()).eigenvalues.min() >= -1e-9 * scale
+    psd_to_rounding(m, SymmetricEigen::new(m.symmetric_part()).eigenvalues.min())
+}
+
+/// [`is_symmetric_psd`] given the smallest eigenvalue of `m`'s symmetric part, so that a caller
+/// that has decomposed `m` already does not decompose it again.
+fn psd_to_rounding(m: &Matrix6<f64>, min_eigenvalue: f64) -> bool {
+    let tolerance = 1e-9 * m.amax().max(f64::MIN_POSITIVE);
+    (m - m.transpose()).amax() <= tolerance && min_eigenvalue >= -tolerance
 }
 
 #[cfg(test)]

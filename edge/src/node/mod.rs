@@ -318,7 +318,10 @@ async fn pump(
                 Some(scan) => outbox.send(scan).await?,
                 None => if let Some(thread) = thread.take() {
                     finish(thread).await?;
-                    outbox.progress();
+                    // The last scan's progress line, unless it has just been written.
+                    if !outbox.summary.frames.is_multiple_of(PROGRESS_EVERY) {
+                        outbox.progress();
+                    }
                     info!("robot {}: source done after {} scans", outbox.robot, outbox.summary.frames);
                     if let Some(SourceEnd(tell)) = &config.on_source_end && !stopping {
                         tell(&outbox.summary);
