@@ -320,3 +320,18 @@ pub fn scratch() -> tempfile::TempDir {
     let keep = std::env::var_os("EMR_KEEP_SCRATCH").is_some();
     tempfile::Builder::new().prefix("emr-system-").disable_cleanup(keep).tempdir().expect("scratch dir")
 }
+
+/// The share of `map`'s global-map points that have a point of `other`'s within `radius` (m).
+/// Two stations that assembled the same keyframes along different histories (one killed and
+/// restarted) voxelise on grids that differ by the placements' millimetres and the order the maps
+/// came in: their point counts differ by a percent or two, while each map still covers the other.
+pub fn covered_share(map: &GlobalMap, other: &GlobalMap, radius: f32) -> f64 {
+    let decode = |m: &GlobalMap| {
+        let data = m.cloud.as_ref().map(|c| c.data.as_ref()).unwrap_or(&[][..]);
+        proto::codec::decode(data).expect("global map cloud decodes").points
+    };
+    let (points, others) = (decode(map), decode(other));
+    let tree = cloud::kdtree::KdTree::from_points(&others);
+    let covered = points.iter().filter(|p| tree.nearest_within(&[p.x, p.y, p.z], radius).is_some()).count();
+    covered as f64 / points.len().max(1) as f64
+}
