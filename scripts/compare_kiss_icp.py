@@ -1,6 +1,6 @@
 # KISS-ICP (PyPI kiss-icp 1.3.0, default configuration, one thread) on a directory of KITTI .bin
 # scans: median milliseconds of register_frame per scan, and its poses as a KITTI file for
-# `emr-edge eval`. With --deskew, per-point times come from the azimuth (a spinning head turning
+# `emr-edge eval` (KITTI .bin scans, or binary PCD as in livox_hku2). With --deskew, per-point times come from the azimuth (a spinning head turning
 # clockwise from the back, as Velodynes and our simulator do), which is what KISS-ICP's own
 # deskewing needs; without it, KISS-ICP registers the scans as they are.
 #
@@ -25,9 +25,29 @@ parser.add_argument("--max-range", type=float, default=100.0)
 args = parser.parse_args()
 
 files = sorted(glob.glob(os.path.join(args.scans, "*.bin"))) or sorted(
-    glob.glob(os.path.join(args.scans, "velodyne", "*.bin")))
+    glob.glob(os.path.join(args.scans, "velodyne", "*.bin"))) or sorted(glob.glob(os.path.join(args.scans, "*.pcd")))
 if not files:
-    raise SystemExit(f"no .bin scans in {args.scans}")
+    raise SystemExit(f"no .bin or .pcd scans in {args.scans}")
+
+
+def read_scan(path):
+    """x y z of a KITTI .bin (float32 x y z intensity) or a binary PCD whose fields are all float32."""
+    if not path.endswith(".pcd"):
+        return np.fromfile(path, dtype=np.float32).reshape(-1, 4)[:, :3].astype(np.float64)
+    with open(path, "rb") as f:
+        header = {}
+        while True:
+            line = f.readline().decode("ascii").strip()
+            if line and not line.startswith("#"):
+                key, *values = line.split()
+                header[key] = values
+                if key == "DATA":
+                    break
+        if header["DATA"] != ["binary"] or set(header["TYPE"]) != {"F"} or set(header["SIZE"]) != {"4"}:
+            raise SystemExit(f"{path}: only binary PCD of float32 fields is read here")
+        fields = header["FIELDS"]
+        data = np.frombuffer(f.read(), dtype=np.float32).reshape(-1, len(fields))
+    return data[:, [fields.index(c) for c in "xyz"]].astype(np.float64)
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 config = load_config(None)
 config.data.deskew = args.deskew
@@ -35,7 +55,7 @@ config.data.max_range = args.max_range
 config.registration.max_num_threads = 1
 odometry = KissICP(config=config)
 
-scans = [np.fromfile(f, dtype=np.float32).reshape(-1, 4)[:, :3].astype(np.float64) for f in files]
+scans = [read_scan(f) for f in files]
 poses, ms, cpu = [], [], []
 for points in scans:
     azimuth = np.arctan2(points[:, 1], points[:, 0])

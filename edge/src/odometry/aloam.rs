@@ -34,7 +34,7 @@ use serde::{Deserialize, Serialize};
 use super::deskew::{self, SweepMotion};
 use super::features::{self, Feature, Features};
 use super::local_map::{FeatureMap, MAX_POINTS_PER_VOXEL, ScanLine};
-use super::{FeatureConfig, Frame, FrameTimings, MapConfig, Odometry, OdometryError, Start, solver};
+use super::{FeatureConfig, Fit, Frame, FrameTimings, MapConfig, Odometry, OdometryError, Start, solver};
 
 /// Which odometry registers the scans.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -216,6 +216,7 @@ impl Odometry {
             start: Start::Prediction,
             lost: false,
             feature_kind: extracted.kind,
+            fit: Fit::Features,
             keyframe,
         })
     }

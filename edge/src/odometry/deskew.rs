@@ -80,6 +80,19 @@ pub fn compensate(features: &[Feature], motion: &SweepMotion) -> Vec<Feature> {
     features.iter().map(|f| Feature { point: motion.compensate(&f.point, f.phase), phase: 1.0, ..*f }).collect()
 }
 
+/// A whole scan moved to the sweep-end frame by its per-point times (`period` seconds a sweep); a
+/// scan without times, or no motion, is returned as it is.
+pub fn cloud(scan: &cloud::PointCloud, motion: &SweepMotion, period: f32) -> cloud::PointCloud {
+    let mut deskewed = scan.clone();
+    if let (false, Some(times)) = (motion.is_zero(), scan.time.as_deref()) {
+        let table = motion.table();
+        for (p, t) in deskewed.points.iter_mut().zip(times) {
+            *p = table.compensate(p, t / period);
+        }
+    }
+    deskewed
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

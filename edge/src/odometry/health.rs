@@ -36,12 +36,21 @@ impl Default for HealthConfig {
 pub struct Health {
     config: HealthConfig,
     recent: VecDeque<f64>,
+    /// The typical share before there is a history, if the measure has a natural one.
+    prior: Option<f64>,
 }
 
 impl Health {
     /// No fit seen yet: nothing is suspect until [`HealthConfig::min_history`] fits were accepted.
     pub fn new(config: HealthConfig) -> Self {
-        Health { recent: VecDeque::with_capacity(config.history + 1), config }
+        Health { recent: VecDeque::with_capacity(config.history + 1), config, prior: None }
+    }
+
+    /// Judged against `prior` until there is a history: for a share whose right value is known
+    /// beforehand (the whole scan on the map it is fitted to), so that a run that is wrong from its
+    /// second scan on is not taken for the norm.
+    pub fn with_prior(config: HealthConfig, prior: f64) -> Self {
+        Health { prior: Some(prior), ..Health::new(config) }
     }
 
     /// The settings.
@@ -52,7 +61,7 @@ impl Health {
     /// The median share of the recent accepted fits, once there are enough of them.
     pub fn typical(&self) -> Option<f64> {
         if self.recent.len() < self.config.min_history.max(1) {
-            return None;
+            return self.prior;
         }
         let mut v: Vec<f64> = self.recent.iter().copied().collect();
         v.sort_by(f64::total_cmp);
@@ -76,6 +85,16 @@ impl Health {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_prior_judges_the_first_fits() {
+        let mut health = Health::with_prior(HealthConfig { history: 4, ..HealthConfig::default() }, 1.0);
+        assert!(health.is_suspect(0.49) && !health.is_suspect(0.5));
+        for share in [0.2, 0.2, 0.2] {
+            health.accept(share);
+        }
+        assert!(!health.is_suspect(0.11), "the history judges once there is one");
+    }
 
     #[test]
     fn a_fit_is_judged_against_the_recent_median() {

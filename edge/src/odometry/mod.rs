@@ -12,6 +12,8 @@
 //!    adaptive threshold, [`motion_model`]) and, still suspect, from a global re-localisation
 //!    ([`cloud::global`]); the fit agreeing best with the map wins, and a scan no start fits is
 //!    lost: reported, but kept out of the map;
+//!    where the features are too few for that fit to measure the pose, or it is lost, the whole
+//!    scan is registered densely against a local map of points instead ([`dense`], KISS-ICP's fit);
 //! 4. stage 2: the distortion is recomputed with the estimated motion and the features are corrected
 //!    again before they enter the map;
 //! 5. local map: edge and plane voxel maps cropped around the robot, k-d trees ([`local_map`]);
@@ -30,6 +32,7 @@
 pub mod aloam;
 pub mod coarse;
 pub mod config;
+pub mod dense;
 pub mod deskew;
 pub mod feature_points;
 pub mod features;
@@ -78,6 +81,8 @@ pub struct Frame {
     pub lost: bool,
     /// Which extractor made the features: rings, or voxel shapes for scans without rings.
     pub feature_kind: features::FeatureKind,
+    /// Which fit gave the pose: the features', or the dense one where they were too few.
+    pub fit: Fit,
     /// The keyframe this scan made, if any.
     pub keyframe: Option<Keyframe>,
     /// Where the time went.
@@ -106,6 +111,17 @@ pub enum Start {
     Coarse,
     /// A global re-localisation against the local map, without a guess.
     Global,
+}
+
+/// Which registration gave a scan's pose.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Fit {
+    /// Edge and plane features against the feature maps (eq. 4): the usual case.
+    #[default]
+    Features,
+    /// The whole scan against the local map of points ([`dense`]): the features were too few.
+    Dense,
 }
 
 /// One start's fit: the estimate, and the compensation and map searches of its last round.
@@ -228,12 +244,16 @@ pub struct Odometry {
     keyframes: u64,
     model: MotionModel,
     health: Health,
+    /// The same judgement of the dense fits, by the share of the scan they place on the map.
+    dense_health: Health,
     /// Scans registered since the start or the last reset of the motion model.
     since_reset: usize,
     /// The first scan's features, until the second scan measured the motion they were taken in.
     first: Option<Features>,
     /// A-LOAM's state, used with [`Method::Aloam`].
     aloam: aloam::AloamState,
+    /// The local map of points the dense fit registers against, made at the first scan's scale.
+    points: Option<dense::PointMap>,
 }
 
 impl Odometry {
@@ -278,8 +298,11 @@ impl Odometry {
             keyframes: 0,
             model: MotionModel::new(config.motion_model.clone()),
             health: Health::new(config.health.clone()),
+            // A dense fit at the right pose puts nearly the whole scan on the map it came from.
+            dense_health: Health::with_prior(config.health.clone(), 1.0),
             since_reset: 0,
             first: None,
+            points: None,
             config,
         })
     }
@@ -324,12 +347,23 @@ impl Odometry {
         let mut watch = Stopwatch::start();
         let (raw, feature_kind) = features::extract_any(scan, self.config.scan_period, &self.config.features)?;
         let features_ms = watch.lap_ms();
+        let scan_lines = feature_kind == features::FeatureKind::Rings;
         let mut located = self.locate(&raw);
         if let Some(polished) = self.polish(&raw, &mut located) {
             located.estimate = polished;
         }
         if let Some(first) = self.first.take() {
             located.estimate = self.recompensate_first(&first, &raw, located.estimate);
+        }
+        let dense = self.dense(scan, &located, scan_lines);
+        if let Some(fit) = &dense {
+            located.estimate.pose = fit.pose;
+            located.estimate.iterations = fit.iterations;
+            located.lost = self.dense_health.is_suspect(fit.on_map);
+            tracing::debug!(frame = self.frames, on_map = fit.on_map, lost = located.lost, "dense fit");
+        } else if !scan_lines && self.frames > 0 && located.estimate.iterations == 0 {
+            // Nothing measured the pose, and the scan would enter the map where it was guessed.
+            located.lost = true;
         }
         let registration_ms = watch.lap_ms();
         let estimate = &located.estimate;
@@ -343,7 +377,15 @@ impl Odometry {
             iterations = estimate.iterations,
             "located"
         );
-        let keyframe = if located.lost { self.skip(located.estimate.pose) } else { self.accept(scan, &raw, &located) };
+        let fit = if dense.is_some() { Fit::Dense } else { Fit::Features };
+        let keyframe = if located.lost {
+            self.skip(located.estimate.pose)
+        } else {
+            if let Some(dense) = &dense {
+                self.dense_health.accept(dense.on_map);
+            }
+            self.accept(scan, &raw, &located, fit)
+        };
         let timings = FrameTimings { features: features_ms, registration: registration_ms, map: watch.lap_ms() };
         Ok(Frame {
             timings,
@@ -356,8 +398,37 @@ impl Odometry {
             start: located.start,
             lost: located.lost,
             feature_kind,
+            fit,
             keyframe,
         })
+    }
+
+    /// The dense fit ([`dense::register`]) of the whole scan, compensated with the predicted sweep
+    /// motion, from the prediction, where the features may not carry the pose: a feature fit that
+    /// measured nothing (too few matches to solve) or is lost, or a scan without scan lines, whose
+    /// voxel-shape features can be too few and too one-sided to fit (a solid-state sensor's few
+    /// thousand points in a 70 deg view). There both fits are judged alike, by the share of the
+    /// scan each places on the map of points, and the feature fit stands where it places as much.
+    /// `None` where the feature fit stands, or the dense one found too little.
+    fn dense(&self, scan: &PointCloud, located: &Located, scan_lines: bool) -> Option<dense::DenseFit> {
+        let fitted = !located.lost && located.estimate.iterations > 0;
+        if self.frames == 0 || (scan_lines && fitted) {
+            return None;
+        }
+        let map = self.points.as_ref().filter(|m| !m.is_empty())?;
+        let motion = if self.config.deskew { self.motion } else { SweepMotion::zero() };
+        let source = self.thinned(scan, &motion, map.scale().source_grid());
+        let fit = dense::register(&source, map, &located.predicted, self.model.sigma())?;
+        if fitted && dense::on_map(&source, map, &located.estimate.pose) >= fit.on_map {
+            return None;
+        }
+        Some(fit)
+    }
+
+    /// The scan's points compensated with `motion` and thinned on a grid of `grid` metres.
+    fn thinned(&self, scan: &PointCloud, motion: &SweepMotion, grid: f32) -> Vec<Point3<f32>> {
+        let deskewed = deskew::cloud(scan, motion, self.config.scan_period);
+        cloud::voxel::downsample(&deskewed, grid).unwrap_or(deskewed).points
     }
 
     /// Stage 1 and the pose, from the constant-velocity prediction (eq. 2); where that fit is
@@ -496,6 +567,7 @@ impl Odometry {
         let centre = Point3::from(self.pose.translation.vector);
         self.edge_map.crop_and_rebuild(&centre);
         self.plane_map.crop_and_rebuild(&centre);
+        self.update_points(scan, &corrected, &centre);
         let keyframe = self.keyframe(scan, &corrected);
         if self.frames == 0 && self.config.deskew {
             self.first = Some(raw.clone());
@@ -505,16 +577,32 @@ impl Odometry {
         keyframe
     }
 
+    /// The scan, compensated with `motion`, enters the local map of points at the current pose (the
+    /// map made at the first scan's scale), and the map follows the robot.
+    fn update_points(&mut self, scan: &PointCloud, motion: &SweepMotion, centre: &Point3<f64>) {
+        let Some(scale) = self.points.as_ref().map(dense::PointMap::scale).or_else(|| dense::Scale::of(&scan.points))
+        else {
+            return;
+        };
+        let thinned = self.thinned(scan, motion, scale.map_grid());
+        let map = self.points.get_or_insert_with(|| dense::PointMap::new(scale));
+        map.insert(&thinned, &self.pose);
+        map.crop(centre);
+    }
+
     /// A fit judged good: the motion model and the health history learn from it, and the scan
     /// enters the map.
-    fn accept(&mut self, scan: &PointCloud, raw: &Features, located: &Located) -> Option<Keyframe> {
+    fn accept(&mut self, scan: &PointCloud, raw: &Features, located: &Located, fit: Fit) -> Option<Keyframe> {
         let pose = located.estimate.pose;
         // The scan after the first (or after a reset) was predicted without a measured velocity:
         // its error says nothing about the prediction.
         if self.since_reset >= 2 {
             self.model.observe(&located.predicted, &pose, &(self.pose.inverse() * pose));
         }
-        self.health.accept(share(&located.estimate, raw));
+        // The health history is of the feature fit's matches; a dense fit says nothing of them.
+        if fit == Fit::Features {
+            self.health.accept(share(&located.estimate, raw));
+        }
         self.update_map(scan, raw, pose)
     }
 
@@ -578,6 +666,7 @@ impl Odometry {
     fn polish(&self, raw: &Features, located: &mut Located) -> Option<solver::Estimate> {
         let huber = self.config.solver.polish_huber;
         if huber <= 0.0
+            || located.estimate.iterations == 0
             || located.lost
             || located.estimate.degenerate_directions > 0
             || self.first.is_some()
@@ -600,15 +689,7 @@ impl Odometry {
                 return None;
             }
         }
-        let times = scan.time.as_deref().unwrap_or(&[]);
-        let period = self.config.scan_period;
-        let mut deskewed = scan.clone();
-        if !motion.is_zero() {
-            let table = motion.table();
-            for (p, t) in deskewed.points.iter_mut().zip(times) {
-                *p = table.compensate(p, t / period);
-            }
-        }
+        let deskewed = deskew::cloud(scan, motion, self.config.scan_period);
         let cloud = cloud::voxel::downsample(&deskewed, kc.voxel).unwrap_or(deskewed);
         self.last_keyframe = Some(self.pose);
         let seq = self.keyframes;

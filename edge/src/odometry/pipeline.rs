@@ -248,7 +248,7 @@ pub fn register<S: Borrow<SourceScan>>(
             .map_err(|source| PipelineError::Register { scan: scan.index, source })?;
         if frame.lost {
             tracing::warn!(
-                "scan {}: lost (no start fitted the map well; kept out of the map, pose from the best fit)",
+                "scan {}: lost (no fit placed it on the map well; kept out of the map, pose from the best fit)",
                 scan.index
             );
         }
@@ -438,14 +438,16 @@ pub fn health_warnings(summary: &RunSummary) -> Vec<String> {
     let mut warnings = Vec::new();
     if summary.unfitted_scans > 0 {
         warnings.push(format!(
-            "{} of {frames} scans could not be fitted (too few feature matches): their poses are the motion \
-             model's extrapolation, not measurements",
+            "{} of {frames} scans could not be fitted (too few matches, features or points): their poses are \
+             the motion model's extrapolation, not measurements",
             summary.unfitted_scans
         ));
     }
     if summary.recoveries.lost > 0 {
-        warnings
-            .push(format!("{} of {frames} scans were lost (no start fitted the map well)", summary.recoveries.lost));
+        warnings.push(format!(
+            "{} of {frames} scans were lost (no fit placed them on the map well)",
+            summary.recoveries.lost
+        ));
     }
     if frames >= 100 && summary.keyframes <= 1 {
         warnings.push(format!(

@@ -16,6 +16,7 @@ pub struct RunStats {
     conditioning: Vec<f64>,
     recoveries: Recoveries,
     voxel_shape_scans: usize,
+    dense: usize,
 }
 
 /// How often the prediction's fit was not the one kept, and how often no fit could be trusted.
@@ -48,9 +49,9 @@ pub struct RunSummary {
     pub plane_features: Spread,
     /// Scans whose pose problem was ill-conditioned (the motion prior was kept along some direction).
     pub degenerate_frames: usize,
-    /// Scans after the first whose fit found fewer feature matches than the solver needs
-    /// (`solver.min_matches`): nothing measured their pose, which is the motion model's
-    /// extrapolation. Any is a warning; many mean the odometry is not tracking.
+    /// Scans after the first whose fit found fewer matches than it needs (the feature fit's
+    /// `solver.min_matches`, the dense fit's 30 points): nothing measured their pose, which is the
+    /// motion model's extrapolation. Any is a warning; many mean the odometry is not tracking.
     pub unfitted_scans: usize,
     /// Conditioning of the pose problem (smallest eigenvalue over the sum of weights): the lowest
     /// value, the 5th percentile and the median over the scans after the first.
@@ -61,6 +62,9 @@ pub struct RunSummary {
     pub recoveries: Recoveries,
     /// Scans without a ring channel, whose features came from voxel shapes instead of rings.
     pub voxel_shape_scans: usize,
+    /// Scans whose pose came from the dense fit of the whole scan against the local map of points:
+    /// their features were too few for the feature fit to measure the pose.
+    pub dense_scans: usize,
 }
 
 impl RunStats {
@@ -80,6 +84,7 @@ impl RunStats {
         self.recoveries.global += usize::from(frame.start == super::Start::Global);
         self.recoveries.lost += usize::from(frame.lost);
         self.voxel_shape_scans += usize::from(frame.feature_kind == super::features::FeatureKind::VoxelShape);
+        self.dense += usize::from(frame.fit == super::Fit::Dense);
         if self.ms.len() > 1 {
             self.conditioning.push(frame.conditioning);
         }
@@ -111,6 +116,7 @@ impl RunStats {
             keyframes: self.keyframes,
             recoveries: self.recoveries,
             voxel_shape_scans: self.voxel_shape_scans,
+            dense_scans: self.dense,
         }
     }
 }

@@ -438,24 +438,34 @@ impl Recording {
 /// what every scan of a recording goes through, and clouds that come from elsewhere can. Where
 /// rings are clustered from elevations, the beams found in the first scan that needs them are
 /// kept for the rest (a sensor's beams do not move), so the clustering runs once and not per scan.
+///
+/// Rings found automatically ([`RingModel::Auto`]) and times from azimuth assume a spinning head:
+/// they are derived only once a scan of the recording showed one ([`sweep_time::is_spinning`]).
+/// A solid-state sensor's scans keep neither channel: they have no scan lines and no sweep.
 #[derive(Clone, Debug)]
 pub struct ChannelDeriver {
     options: RecordingOptions,
     beams: Option<rings::Beams>,
+    spinning: bool,
 }
 
 impl ChannelDeriver {
-    /// Nothing clustered yet.
+    /// Nothing clustered yet, no spinning head seen yet.
     pub fn new(options: RecordingOptions) -> Self {
-        ChannelDeriver { options, beams: None }
+        ChannelDeriver { options, beams: None, spinning: false }
     }
 
     /// Fills the channels `cloud` lacks.
     pub fn derive(&mut self, cloud: &mut PointCloud) {
-        if cloud.ring.is_none() {
+        let assumes_spin =
+            self.options.rings == RingModel::Auto || matches!(self.options.times, TimeModel::Azimuth { .. });
+        if !self.spinning && assumes_spin && (cloud.ring.is_none() || cloud.time.is_none()) {
+            self.spinning = sweep_time::is_spinning(&cloud.points);
+        }
+        if cloud.ring.is_none() && (self.spinning || self.options.rings != RingModel::Auto) {
             cloud.ring = self.rings(cloud);
         }
-        if let (None, TimeModel::Azimuth { period_s, spin }) = (&cloud.time, self.options.times) {
+        if let (None, TimeModel::Azimuth { period_s, spin }, true) = (&cloud.time, self.options.times, self.spinning) {
             cloud.time = Some(times_from_azimuth(&cloud.points, period_s, spin));
         }
     }

@@ -83,6 +83,27 @@ fn azimuth(p: &Point3<f32>) -> f64 {
     f64::from(p.y).atan2(f64::from(p.x))
 }
 
+/// One-degree bins of azimuth: a spinning head's scan returns in nearly all of them.
+const AZIMUTH_BINS: usize = 360;
+
+/// The share of the azimuth circle (in one-degree bins) where `points` have a return.
+pub fn azimuth_coverage(points: &[Point3<f32>]) -> f64 {
+    let mut seen = [false; AZIMUTH_BINS];
+    for p in points.iter().filter(|p| p.x != 0.0 || p.y != 0.0) {
+        let bin = ((azimuth(p) + std::f64::consts::PI) / std::f64::consts::TAU * AZIMUTH_BINS as f64) as usize;
+        seen[bin.min(AZIMUTH_BINS - 1)] = true;
+    }
+    seen.iter().filter(|s| **s).count() as f64 / AZIMUTH_BINS as f64
+}
+
+/// True when a scan looks taken by a spinning head: it has returns around more than half the
+/// circle. Scan lines and a sweep through azimuth, what rings and times are derived from, exist
+/// only there; a solid-state sensor's view (70-120 deg) covers a fifth to a third of it, while a
+/// spinning head sees around itself even with its back to a wall or its rear half masked.
+pub fn is_spinning(points: &[Point3<f32>]) -> bool {
+    azimuth_coverage(points) > 0.5
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -112,6 +133,22 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_full_turn_is_spinning_and_a_forward_view_is_not() {
+        let around = ring(&(0..3600).map(|i| f64::from(i) / 36_000.0).collect::<Vec<_>>(), 0.0, Spin::Clockwise, 0.1);
+        assert!((azimuth_coverage(&around) - 1.0).abs() < 1e-9);
+        assert!(is_spinning(&around));
+        // The rear half masked: still a spinning head.
+        let front: Vec<Point3<f32>> = around.iter().filter(|p| p.x > -0.5).copied().collect();
+        assert!(is_spinning(&front));
+        // A 70 deg forward view (a Livox Avia's).
+        let narrow: Vec<Point3<f32>> =
+            around.iter().filter(|p| p.y.atan2(p.x).abs() < 35f32.to_radians()).copied().collect();
+        assert!((azimuth_coverage(&narrow) - 70.0 / 360.0).abs() < 0.01, "{}", azimuth_coverage(&narrow));
+        assert!(!is_spinning(&narrow));
+        assert!(!is_spinning(&[]));
     }
 
     #[test]
