@@ -41,18 +41,34 @@ pub fn displacement(deviation: &Isometry3<f64>, range: f64) -> f64 {
     deviation.translation.vector.norm() + 2.0 * range * (deviation.rotation.angle() / 2.0).sin()
 }
 
-/// The running σ of the prediction's error.
+/// How far the last motion is carried forward to predict the next scan's pose.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Extrapolation {
+    /// Over the sweeps that passed since the last scan, by the stamps: right for a sensor read at
+    /// its own rate, whatever scans were dropped.
+    Time,
+    /// By the last scan-to-scan motion, whatever the time between: right for scans kept by
+    /// distance travelled (a recording of keyframes), where the stamps' gaps follow the speed.
+    Scan,
+}
+
+/// Scans over which the two extrapolations' errors are compared.
+const EXTRAPOLATION_WINDOW: usize = 20;
+
+/// The running σ of the prediction's error, and which extrapolation has predicted better.
 #[derive(Clone, Debug)]
 pub struct MotionModel {
     config: MotionModelConfig,
     sum_sq: f64,
     count: usize,
+    /// Recent squared errors of the two extrapolations, by time and by scan.
+    recent: std::collections::VecDeque<(f64, f64)>,
 }
 
 impl MotionModel {
     /// No evidence yet: σ is [`MotionModelConfig::initial_sigma`].
     pub fn new(config: MotionModelConfig) -> Self {
-        MotionModel { config, sum_sq: 0.0, count: 0 }
+        MotionModel { config, sum_sq: 0.0, count: 0, recent: std::collections::VecDeque::new() }
     }
 
     /// Eq. 10: σ = sqrt(Σ e² / n) over the scans that moved, or the initial σ before any did.
@@ -74,6 +90,23 @@ impl MotionModel {
     pub fn reset(&mut self) {
         self.sum_sq = 0.0;
         self.count = 0;
+        self.recent.clear();
+    }
+
+    /// Records how far each extrapolation's prediction (`by_time`, `by_scan`) was from the
+    /// `estimated` pose. Where the stamps are regular the two are one and the same.
+    pub fn compare(&mut self, by_time: &Isometry3<f64>, by_scan: &Isometry3<f64>, estimated: &Isometry3<f64>) {
+        let error = |predicted: &Isometry3<f64>| displacement(&(predicted.inverse() * estimated), self.config.range);
+        if self.recent.len() == EXTRAPOLATION_WINDOW {
+            self.recent.pop_front();
+        }
+        self.recent.push_back((error(by_time).powi(2), error(by_scan).powi(2)));
+    }
+
+    /// The extrapolation with the smaller recent error; by time until the scans say otherwise.
+    pub fn extrapolation(&self) -> Extrapolation {
+        let (time, scan) = self.recent.iter().fold((0.0, 0.0), |(t, s), (a, b)| (t + a, s + b));
+        if scan < time { Extrapolation::Scan } else { Extrapolation::Time }
     }
 
     /// True when two sweep stamps are far enough apart to distrust the prediction.
@@ -100,6 +133,23 @@ mod tests {
         assert!((model.sigma() - (0.125f64).sqrt()).abs() < 1e-12);
         model.reset();
         assert_eq!(model.sigma(), 2.0);
+    }
+
+    #[test]
+    fn the_extrapolation_that_predicted_better_is_chosen() {
+        let mut model = MotionModel::new(MotionModelConfig::default());
+        assert_eq!(model.extrapolation(), Extrapolation::Time);
+        let truth = Isometry3::translation(1.0, 0.0, 0.0);
+        // Regular stamps: both predict alike, time is kept.
+        model.compare(&truth, &truth, &truth);
+        assert_eq!(model.extrapolation(), Extrapolation::Time);
+        // Keyframes kept by distance: the scan's motion predicts, the time gap overshoots.
+        for _ in 0..3 {
+            model.compare(&Isometry3::translation(2.5, 0.0, 0.0), &Isometry3::translation(1.1, 0.0, 0.0), &truth);
+        }
+        assert_eq!(model.extrapolation(), Extrapolation::Scan);
+        model.reset();
+        assert_eq!(model.extrapolation(), Extrapolation::Time);
     }
 
     #[test]
