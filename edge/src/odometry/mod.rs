@@ -162,6 +162,11 @@ const SAME_FIT_RANGE_M: f64 = 10.0;
 const POLISH_MAX_M: f64 = 0.02;
 
 impl Located {
+    /// True when the feature fit measured the pose (matches enough to solve) and is not lost.
+    fn measured(&self) -> bool {
+        !self.lost && self.estimate.iterations > 0
+    }
+
     /// Takes `estimate` (started from `start`) when it found another pose than the current fit
     /// and `agreement` scores it higher, by `margin` (a fraction) at least. Two starts that
     /// converged to the same pose differ by chance; the prediction's fit is kept then.
@@ -372,8 +377,7 @@ impl Odometry {
         if let Some(first) = self.first.take() {
             located.estimate = self.recompensate_first(&first, &raw, located.estimate);
         }
-        let fitted = !located.lost && located.estimate.iterations > 0;
-        if !scan_lines || (self.frames > 0 && !fitted) {
+        if !scan_lines || (self.frames > 0 && !located.measured()) {
             self.want_points();
         }
         let dense = self.dense(scan, &located, scan_lines);
@@ -432,7 +436,7 @@ impl Odometry {
     /// scan each places on the map of points, and the feature fit stands where it places as much.
     /// `None` where the feature fit stands, or the dense one found too little.
     fn dense(&self, scan: &PointCloud, located: &Located, scan_lines: bool) -> Option<dense::DenseFit> {
-        let fitted = !located.lost && located.estimate.iterations > 0;
+        let fitted = located.measured();
         if self.frames == 0 || (scan_lines && fitted) {
             return None;
         }
