@@ -10,6 +10,9 @@ use sim::SensorKind;
 
 use crate::odometry::Method;
 use crate::odometry::pipeline::Tuning;
+use crate::packets::ReturnChoice;
+use crate::packets::velodyne::Model;
+use crate::recording::{PacketOptions, RecordingOptions};
 use crate::source::SourceSpec;
 
 /// How the odometry is configured (shared by the commands that run it).
@@ -40,13 +43,61 @@ impl From<&TuningArgs> for Tuning {
 /// Where scans come from (shared by the commands that read a source).
 #[derive(clap::Args, Debug)]
 pub struct SourceArgs {
-    /// The source: a directory of scans, a .bag or .mcap file, or sim:SCENARIO:ROBOT.
+    /// The source: a directory of scans, a .bag, .mcap or .pcap/.pcapng file (pcap:FILE whatever
+    /// its name), udp:ADDRESS:PORT for a live sensor, or sim:SCENARIO:ROBOT.
     pub input: SourceSpec,
     /// Topic of sensor_msgs/PointCloud2 in a bag or MCAP file [default: the only one].
     #[arg(long)]
     pub topic: Option<String>,
     #[command(flatten)]
+    pub packets: PacketArgs,
+    #[command(flatten)]
     pub sim: SimArgs,
+}
+
+impl SourceArgs {
+    /// How to read a recording or packets, as the user said.
+    pub fn reading(&self) -> RecordingOptions {
+        RecordingOptions { topic: self.topic.clone(), packets: self.packets.options(), ..RecordingOptions::default() }
+    }
+}
+
+/// How LiDAR packets decode (pcap: and udp: sources).
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct PacketArgs {
+    /// Ouster sensor metadata (JSON, as the sensor or ouster-sdk writes it) [default: the
+    /// capture's name with .json; without one, packets are read as a Velodyne's].
+    #[arg(long, value_name = "JSON")]
+    pub metadata: Option<PathBuf>,
+    /// Velodyne calibration in velodyne_pointcloud's YAML format; an HDL-64E needs its own
+    /// [default: the capture's name with .yaml, else the model's published table].
+    #[arg(long, value_name = "YAML")]
+    pub calibration: Option<PathBuf>,
+    /// Velodyne model [default: from the packets' factory bytes]; an HDL-64E must be named, its
+    /// packets do not say whether it is an S2 or an S3.
+    #[arg(long, value_enum)]
+    pub model: Option<Model>,
+    /// Which return of a dual-return sensor to keep: first (the strongest, or an Ouster's first),
+    /// second, or both.
+    #[arg(long, value_enum, default_value_t = ReturnChoice::First)]
+    pub returns: ReturnChoice,
+    /// The sensor's data port [default: the port of the first rotation decoded; a live source
+    /// gets only its own port's packets].
+    #[arg(long)]
+    pub port: Option<u16>,
+}
+
+impl PacketArgs {
+    /// The decoder's settings.
+    pub fn options(&self) -> PacketOptions {
+        PacketOptions {
+            metadata: self.metadata.clone(),
+            calibration: self.calibration.clone(),
+            model: self.model,
+            returns: self.returns,
+            port: self.port,
+        }
+    }
 }
 
 /// The simulated sensors of `sim:` sources (shared by the commands that read them).

@@ -3,10 +3,12 @@
 
 pub mod args;
 pub mod keyframe;
+pub mod live_sensor;
 pub mod live_view;
 pub mod loops;
 pub mod node;
 pub mod odometry;
+pub mod packets;
 pub mod recording;
 pub mod source;
 pub mod wire;

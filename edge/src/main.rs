@@ -31,7 +31,8 @@ struct Cli {
 enum Command {
     /// Simulate one robot's LiDAR in a built-in scenario and write the sweeps in the KITTI layout:
     /// OUT/velodyne/NNNNNN.bin (raw, motion-distorted x y z intensity), OUT/poses.txt (ground truth
-    /// at each sweep's end, first pose identity) and OUT/times.txt (sweep starts, first 0).
+    /// at each sweep's end, first pose identity) and OUT/times.txt (sweep starts, first 0); or as
+    /// the sensor's packets, written to a capture (--pcap) or sent to a loopback port (--send).
     Sim(SimArgs),
     /// Convert any source to the KITTI layout: OUT/velodyne/NNNNNN.bin (x y z intensity, float32)
     /// and OUT/times.txt (sweep starts relative to the first, seconds); for `sim:` sources also

@@ -1,13 +1,18 @@
-//! Where scans come from: the built-in simulator (`sim:SCENARIO:ROBOT`) or a recording (a directory
-//! of scans, a ROS 1 bag, an MCAP file), behind one iterator.
+//! Where scans come from: the built-in simulator (`sim:SCENARIO:ROBOT`), a recording (a directory
+//! of scans, a ROS 1 bag, an MCAP file, a packet capture) or a live sensor (`udp:ADDRESS:PORT`),
+//! behind one iterator.
 
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
+use std::sync::mpsc::RecvTimeoutError;
+use std::time::Duration;
 
 use cloud::PointCloud;
 use nalgebra::Isometry3;
+use serde::Serialize;
 use sim::{Scenario, SimConfig, SimError, Simulator, UnknownScenario};
 
+use crate::live_sensor::LiveSensor;
 use crate::recording::{self, RecordingError, RecordingOptions};
 
 /// A scan source named on the command line.
@@ -20,8 +25,11 @@ pub enum SourceSpec {
         /// Robot id, 1-based.
         robot: u32,
     },
-    /// A directory of scans, a `.bag` or an `.mcap` file.
+    /// A directory of scans, a `.bag`, `.mcap` or packet capture (`pcap:FILE` names a capture
+    /// whatever its extension).
     Recording(PathBuf),
+    /// `udp:ADDR:PORT`: a live sensor's packets, received on that local address.
+    Udp(std::net::SocketAddr),
 }
 
 /// A source specification that cannot be understood.
@@ -40,6 +48,7 @@ impl std::fmt::Display for SourceSpec {
         match self {
             SourceSpec::Sim { scenario, robot } => write!(f, "sim:{scenario}:{robot}"),
             SourceSpec::Recording(path) => write!(f, "{}", path.display()),
+            SourceSpec::Udp(address) => write!(f, "udp:{address}"),
         }
     }
 }
@@ -48,8 +57,18 @@ impl FromStr for SourceSpec {
     type Err = InvalidSource;
 
     fn from_str(s: &str) -> Result<Self, InvalidSource> {
-        let Some(rest) = s.strip_prefix("sim:") else { return Ok(SourceSpec::Recording(PathBuf::from(s))) };
         let invalid = |reason: &str| InvalidSource { input: s.to_owned(), reason: reason.to_owned() };
+        if let Some(file) = s.strip_prefix("pcap:") {
+            return Ok(SourceSpec::Recording(PathBuf::from(file)));
+        }
+        if let Some(address) = s.strip_prefix("udp:") {
+            return address.parse().map(SourceSpec::Udp).map_err(|_| {
+                invalid(
+                    "expected udp:ADDRESS:PORT, e.g. udp:192.168.1.100:2368 (the local address the sensor sends to)",
+                )
+            });
+        }
+        let Some(rest) = s.strip_prefix("sim:") else { return Ok(SourceSpec::Recording(PathBuf::from(s))) };
         let (scenario, robot) = match rest.split_once(':') {
             Some((name, id)) => {
                 (name, id.parse::<u32>().ok().filter(|r| *r >= 1).ok_or_else(|| invalid("robot ids are 1, 2, ..."))?)
@@ -74,6 +93,71 @@ pub struct SourceScan {
     pub index: usize,
     /// Ground-truth sensor pose at the sweep end, in the world frame, when the source knows it.
     pub ground_truth: Option<Isometry3<f64>>,
+    /// Packets or columns of the rotation lost before decoding (packet sources; 0 elsewhere).
+    pub gaps: usize,
+    /// Only part of a rotation: a packet capture's first or last.
+    pub partial: bool,
+    /// Whole scans a live sensor sent since the previous one that were dropped because the
+    /// consumer was busy (0 for files, which wait).
+    pub dropped_before: usize,
+}
+
+impl From<sim::Scan> for SourceScan {
+    /// A simulated sweep, with its ground truth; nothing lost.
+    fn from(s: sim::Scan) -> Self {
+        SourceScan {
+            cloud: s.cloud,
+            stamp: s.stamp,
+            index: s.frame,
+            ground_truth: Some(s.ground_truth),
+            gaps: 0,
+            partial: false,
+            dropped_before: 0,
+        }
+    }
+}
+
+/// What a packet source lost before the odometry saw its scans: each is counted in `stats.json`
+/// and warned about, since a scan with a hole or a missing scan is less than the sensor saw.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct SourceLosses {
+    /// Scans covering only part of a rotation (a capture's first and last).
+    pub partial_scans: usize,
+    /// Packets (Velodyne) or columns (Ouster) missing within the scans.
+    pub packet_gaps: usize,
+    /// Whole scans of a live sensor dropped because the odometry was busy.
+    pub dropped_scans: usize,
+}
+
+impl SourceLosses {
+    /// Adds what `scan` lost.
+    pub fn count(&mut self, scan: &SourceScan) {
+        self.partial_scans += usize::from(scan.partial);
+        self.packet_gaps += scan.gaps;
+        self.dropped_scans += scan.dropped_before;
+    }
+
+    /// Adds another count.
+    pub fn add(&mut self, other: &SourceLosses) {
+        self.partial_scans += other.partial_scans;
+        self.packet_gaps += other.packet_gaps;
+        self.dropped_scans += other.dropped_scans;
+    }
+
+    /// A line per kind of loss, for the log.
+    pub fn warnings(&self) -> Vec<String> {
+        let mut warnings = Vec::new();
+        if self.partial_scans > 0 {
+            warnings.push(format!("{} scans cover only part of a rotation", self.partial_scans));
+        }
+        if self.packet_gaps > 0 {
+            warnings.push(format!("{} packets or columns were missing within scans", self.packet_gaps));
+        }
+        if self.dropped_scans > 0 {
+            warnings.push(format!("{} whole scans were dropped: the odometry did not keep up", self.dropped_scans));
+        }
+        warnings
+    }
 }
 
 /// Why a source could not be opened or read.
@@ -88,6 +172,14 @@ pub enum SourceError {
     /// A recording could not be opened or read.
     #[error(transparent)]
     Recording(#[from] RecordingError),
+    /// A live sensor's address cannot be listened on, or its decoder set up.
+    #[error("udp:{address}: {reason}")]
+    Live {
+        /// The address asked for.
+        address: std::net::SocketAddr,
+        /// Why.
+        reason: String,
+    },
 }
 
 impl SourceError {
@@ -112,7 +204,12 @@ pub struct Source {
 enum Inner {
     Sim { sim: Box<Simulator>, next: usize },
     Recording(Box<recording::Recording>),
+    Live { sensor: LiveSensor, next: usize },
 }
+
+/// How long a live sensor may be silent before it is warned about (it is waited for still: a
+/// sensor that restarts comes back).
+const SILENCE_WARNING: Duration = Duration::from_secs(5);
 
 impl Source {
     /// Opens a source; `frames` caps the number of scans, `sim` configures simulated sensors and
@@ -143,7 +240,35 @@ impl Source {
                 };
                 Ok(Source { inner: Inner::Recording(Box::new(rec)), len, limit: frames, given: 0 })
             }
+            SourceSpec::Udp(address) => {
+                let fail = |e: std::io::Error| SourceError::Live { address: *address, reason: e.to_string() };
+                let assembler = recording::assembler_for(None, &options.packets)
+                    .map_err(|e| SourceError::Live { address: *address, reason: e.to_string() })?;
+                let sensor = LiveSensor::start(*address, assembler, options.packets.port).map_err(fail)?;
+                Ok(Source { inner: Inner::Live { sensor, next: 0 }, len: frames, limit: frames, given: 0 })
+            }
         }
+    }
+}
+
+impl Source {
+    /// Leaves out the first `scans` scans (a run that starts where another stopped): the
+    /// simulator starts at that sweep, a recording is read past them, a live sensor's are dropped
+    /// as they come. `len` and the limit count from there.
+    pub fn starting_at(mut self, scans: usize) -> Self {
+        match &mut self.inner {
+            Inner::Sim { next, .. } => *next = scans,
+            Inner::Recording(rec) => rec.by_ref().take(scans).for_each(drop),
+            Inner::Live { sensor, next } => {
+                for _ in 0..scans {
+                    if live_scan(sensor, next, None).is_none() {
+                        break;
+                    }
+                }
+            }
+        }
+        self.len = self.len.map(|len| len.saturating_sub(if self.limit.is_some() { 0 } else { scans }));
+        self
     }
 }
 
@@ -174,16 +299,54 @@ impl Iterator for Source {
             Inner::Sim { sim, next } => {
                 let s = sim.scan(*next);
                 *next += 1;
-                Ok(SourceScan { cloud: s.cloud, stamp: s.stamp, index: s.frame, ground_truth: Some(s.ground_truth) })
+                Ok(SourceScan::from(s))
             }
             Inner::Recording(rec) => rec
                 .next()?
-                .map(|s| SourceScan { cloud: s.cloud, stamp: s.stamp, index: s.index, ground_truth: None })
+                .map(|s| SourceScan {
+                    cloud: s.cloud,
+                    stamp: s.stamp,
+                    index: s.index,
+                    ground_truth: None,
+                    gaps: s.gaps,
+                    partial: s.partial,
+                    dropped_before: 0,
+                })
                 .map_err(SourceError::from),
+            Inner::Live { sensor, next } => Ok(live_scan(sensor, next, self.limit)?),
         };
-        self.given += item.is_ok() as usize;
+        // A live sensor's dropped scans count towards the limit: it is the sensor's scans.
+        self.given += item.as_ref().map_or(0, |scan| 1 + scan.dropped_before);
         Some(item)
     }
+}
+
+/// The next scan of a live sensor, waiting for it; `None` when its receiving thread ended, or
+/// when the sensor went silent after sending `limit` scans (the last of which were dropped).
+fn live_scan(sensor: &LiveSensor, next: &mut usize, limit: Option<usize>) -> Option<SourceScan> {
+    let mut silent = Duration::ZERO;
+    let live = loop {
+        match sensor.next_rotation(SILENCE_WARNING) {
+            Ok(live) => break live,
+            Err(RecvTimeoutError::Timeout) if limit.is_some_and(|l| sensor.counts().rotations >= l) => return None,
+            Err(RecvTimeoutError::Timeout) => {
+                silent += SILENCE_WARNING;
+                tracing::warn!("no scan from udp:{} for {} s", sensor.address(), silent.as_secs());
+            }
+            Err(RecvTimeoutError::Disconnected) => return None,
+        }
+    };
+    let index = *next;
+    *next += 1;
+    Some(SourceScan {
+        cloud: recording::rotation_cloud(&live.rotation),
+        stamp: live.rotation.stamp,
+        index,
+        ground_truth: None,
+        gaps: live.rotation.gaps,
+        partial: live.rotation.partial,
+        dropped_before: live.dropped_before,
+    })
 }
 
 #[cfg(test)]
@@ -201,6 +364,17 @@ mod tests {
     }
 
     #[test]
+    fn parses_capture_and_live_sensor_specs() {
+        assert_eq!("pcap:run/lidar.cap".parse(), Ok(SourceSpec::Recording("run/lidar.cap".into())));
+        assert_eq!("udp:127.0.0.1:2368".parse(), Ok(SourceSpec::Udp("127.0.0.1:2368".parse().unwrap())));
+        assert_eq!("udp:[::1]:7502".parse(), Ok(SourceSpec::Udp("[::1]:7502".parse().unwrap())));
+        let err = "udp:2368".parse::<SourceSpec>().unwrap_err();
+        assert!(err.to_string().contains("udp:ADDRESS:PORT"), "{err}");
+        let spec: SourceSpec = "udp:127.0.0.1:2368".parse().unwrap();
+        assert_eq!(spec.to_string(), "udp:127.0.0.1:2368");
+    }
+
+    #[test]
     fn sim_source_gives_ground_truth_and_stops() {
         let spec: SourceSpec = "sim:aisles:2".parse().unwrap();
         let scans: Vec<_> = Source::open(&spec, Some(3), &SimConfig::default(), &RecordingOptions::default())
@@ -212,5 +386,21 @@ mod tests {
         let err =
             Source::open(&"sim:aisles:3".parse().unwrap(), None, &SimConfig::default(), &RecordingOptions::default());
         assert!(err.err().unwrap().to_string().contains("has 2 robots"));
+    }
+
+    #[test]
+    fn a_source_started_later_gives_the_same_scans_from_there() {
+        let spec: SourceSpec = "sim:aisles:1".parse().unwrap();
+        let open = || Source::open(&spec, Some(5), &SimConfig::default(), &RecordingOptions::default()).unwrap();
+        let all: Vec<_> = open().map(Result::unwrap).collect();
+        let later: Vec<_> = open().starting_at(3).map(Result::unwrap).take(2).collect();
+        assert_eq!(later.iter().map(|s| s.index).collect::<Vec<_>>(), [3, 4]);
+        for (a, b) in later.iter().zip(&all[3..]) {
+            assert_eq!((a.stamp, &a.cloud.points, a.ground_truth), (b.stamp, &b.cloud.points, b.ground_truth));
+        }
+        let kitti = testkit::shared_data("kitti00");
+        let recording = Source::open(&SourceSpec::Recording(kitti), None, &SimConfig::default(), &Default::default());
+        let first = recording.unwrap().starting_at(14).map(Result::unwrap).next().unwrap();
+        assert_eq!(first.index, 14);
     }
 }

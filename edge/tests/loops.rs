@@ -135,7 +135,9 @@ fn run(source: &str, preset: Preset) -> (f64, f64, edge::loops::track::LoopJudge
     let source: SourceSpec = source.parse().unwrap();
     let mut track = LoopTrack::new(config.loops.clone());
     let mut odometry = Odometry::new(config.clone()).unwrap();
-    let scans = pipeline::Scans::new(pipeline::open(&source, None, None, &config, &SimConfig::default()).unwrap());
+    let scans = pipeline::Scans::new(
+        pipeline::open(&source, Default::default(), None, &config, &SimConfig::default()).unwrap(),
+    );
     let pass = pipeline::register(&mut odometry, scans, |_, frame| Ok(track.observe(frame)?)).unwrap();
     let mr = pipeline::evaluate(&pass.truth, &pass.estimate.poses).unwrap().unwrap();
     let emr = pipeline::evaluate(&pass.truth, &track.corrected()).unwrap().unwrap();

@@ -49,7 +49,7 @@ fn the_pipeline_writes_the_poses_the_odometry_estimates() {
     // The library pipeline (what `emr-edge odometry` runs) against the odometry called by hand:
     // the same poses, to the last digit of the KITTI file.
     let config = Tuning { preset: Preset::Outdoor, file: None, no_deskew: true, method: None }.load().unwrap();
-    let options = pipeline::recording_options(None, &config);
+    let options = pipeline::recording_options(Default::default(), &config);
     let mut odometry = Odometry::new(config.clone()).unwrap();
     let by_hand = Trajectory {
         poses: open(&data(), &options)
@@ -63,7 +63,7 @@ fn the_pipeline_writes_the_poses_the_odometry_estimates() {
     };
     let out = tempfile::tempdir().unwrap();
     let input = SourceSpec::Recording(data());
-    let report = OdometryPipeline::new(&input, None, None, config, &SimConfig::default(), out.path())
+    let report = OdometryPipeline::new(&input, Default::default(), None, config, &SimConfig::default(), out.path())
         .unwrap()
         .run(|_| {})
         .unwrap();

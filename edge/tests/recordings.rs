@@ -835,7 +835,7 @@ fn invalid_points_are_dropped_and_counted_and_a_bad_file_fails_alone() {
 // Conversion to KITTI.
 
 #[test]
-fn convert_writes_kitti_bins_and_relative_times() {
+fn convert_writes_the_scans_with_their_channels_and_relative_times() {
     let out = tempfile::tempdir().unwrap();
     let recording = open(&fixture("kitti3_lz4.bag"), &with_topic("/ouster/points")).unwrap();
     let mut seen = Vec::new();
@@ -850,12 +850,13 @@ fn convert_writes_kitti_bins_and_relative_times() {
     for (t, e) in times.iter().zip(&expected) {
         assert!((t - (e.stamp - expected[0].stamp)).abs() < 1e-6, "{t}");
     }
-    // Read back through the directory source: same points and intensities, stamps from times.txt.
+    // Read back through the directory source: the same points and channels (the Ouster topic has
+    // rings and times, which binary PCD keeps and KITTI .bin could not), stamps from times.txt.
     let back: Vec<Scan> = open(out.path(), &RecordingOptions::default()).unwrap().map(Result::unwrap).collect();
-    assert!(out.path().join("velodyne/000002.bin").is_file());
+    assert!(out.path().join("velodyne/000002.pcd").is_file());
+    assert!(expected.iter().all(|e| e.cloud.ring.is_some() || e.cloud.time.is_some()));
     for (scan, e) in back.iter().zip(&expected) {
-        assert_eq!(scan.cloud.points, e.cloud.points);
-        assert_eq!(scan.cloud.intensity, e.cloud.intensity);
+        assert_eq!(scan.cloud, e.cloud);
     }
     let err = convert(open(&fixture("kitti3.bag"), &with_topic("/points_f64")).unwrap(), out.path(), |_| {});
     assert!(matches!(err, Err(ConvertError::NotEmpty { .. })), "{err:?}");

@@ -5,7 +5,8 @@
 //! vertical cylinders, spheres, triangles, unbounded planes) with a binned-SAH [`bvh`] for ray
 //! casting. A [`Scenario`] puts robots on smooth [`Trajectory`]s through a world; a [`Simulator`]
 //! turns one robot's motion into LiDAR sweeps, or, [`spinning`](Simulator::spinning), a robot
-//! turning in place ([`SpinInPlace`]).
+//! turning in place ([`SpinInPlace`]). [`packets`] sends the sweeps as a real sensor would: as a
+//! VLP-16's or an Ouster's UDP packets, into a pcap capture or to a loopback address.
 //!
 //! ```no_run
 //! use sim::{Scenario, SimConfig, Simulator};
@@ -46,6 +47,7 @@ pub mod export;
 pub mod geometry;
 pub mod maps;
 pub mod noise;
+pub mod packets;
 pub mod scenario;
 pub mod sensor;
 pub mod simulator;
@@ -60,7 +62,7 @@ pub use geometry::{Aabb, Cuboid, Cylinder, Hit, Object, Plane, Ray, Shape, Spher
 pub use maps::{MapsError, RobotMaps};
 pub use scenario::{CATALOG, FRAME_RATE, Scenario, ScenarioInfo, UnknownScenario, scenario_names};
 pub use sensor::{SensorKind, SensorModel, UnknownSensor};
-pub use simulator::{Scan, SimConfig, SimError, Simulator};
+pub use simulator::{RangeImage, RangeReturn, Scan, SimConfig, SimError, Simulator};
 pub use spin::SpinInPlace;
 pub use trajectory::{Trajectory, TrajectoryConfig, TrajectoryError};
 pub use world::{Terrain, Wave, World, WorldHit};

@@ -67,10 +67,58 @@ pub struct Scan {
     pub ground_truth: Isometry3<f64>,
 }
 
+/// One sweep as the sensor measured it, before the ranges became points: what a LiDAR puts in its
+/// packets. Cell (column, beam) holds the return of beam `beam` (0 = lowest) fired in column
+/// `column`; its point in [`Scan::cloud`] is `range · SensorModel::direction(beam, column)`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RangeImage {
+    /// Frame index (0-based).
+    pub frame: usize,
+    /// Sweep start, seconds on the scenario clock (as [`Scan::stamp`]).
+    pub stamp: f64,
+    /// Beams per column.
+    pub beams: usize,
+    /// Seconds from `stamp` at which each column fires (all its beams at once).
+    pub column_times: Vec<f64>,
+    /// Column-major cells: `cells[column * beams + beam]`.
+    cells: Vec<Option<RangeReturn>>,
+}
+
+/// One return of a [`RangeImage`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RangeReturn {
+    /// Metres along the beam from the sensor origin, noise included.
+    pub range: f64,
+    /// As the cloud's intensity channel: `reflectivity · |cos(incidence)|`, 0..1.
+    pub intensity: f32,
+}
+
+impl RangeImage {
+    /// Columns of the sweep.
+    pub fn columns(&self) -> usize {
+        self.column_times.len()
+    }
+
+    /// The return of `beam` in `column`; `None` where the ray returned nothing or the cell does not
+    /// exist.
+    pub fn get(&self, column: usize, beam: usize) -> Option<RangeReturn> {
+        if beam >= self.beams {
+            return None;
+        }
+        self.cells.get(column * self.beams + beam).copied().flatten()
+    }
+
+    /// Returns in the image.
+    pub fn returns(&self) -> usize {
+        self.cells.iter().flatten().count()
+    }
+}
+
 /// One return, before assembly into the cloud.
 #[derive(Clone, Copy, Debug)]
 struct Sample {
     point: [f32; 3],
+    range: f64,
     intensity: f32,
 }
 
@@ -155,6 +203,23 @@ impl Simulator {
 
     /// Simulates sweep `frame` (any index; past the scenario's end the robot is parked).
     pub fn scan(&self, frame: usize) -> Scan {
+        self.scan_of(frame, &self.samples(frame))
+    }
+
+    /// Sweep `frame` as a range image: the same rays, noise and dropouts as [`Simulator::scan`]
+    /// gives for the frame, before they become points.
+    pub fn range_image(&self, frame: usize) -> RangeImage {
+        self.range_image_of(frame, &self.samples(frame))
+    }
+
+    /// Sweep `frame` both as a cloud and as a range image, its rays cast once.
+    pub fn scan_and_range_image(&self, frame: usize) -> (Scan, RangeImage) {
+        let samples = self.samples(frame);
+        (self.scan_of(frame, &samples), self.range_image_of(frame, &samples))
+    }
+
+    /// Every ray of sweep `frame`, column by column.
+    fn samples(&self, frame: usize) -> Vec<Option<Sample>> {
         let sensor = &self.config.sensor;
         let stamp = self.stamp(frame);
         let mut samples = vec![None; sensor.rays_per_scan()];
@@ -162,7 +227,22 @@ impl Simulator {
             .par_chunks_mut(sensor.beams())
             .enumerate()
             .for_each(|(column, out)| self.fire_column(frame, column, stamp, out));
-        Scan { frame, cloud: self.assemble(&samples), stamp, ground_truth: self.ground_truth(frame) }
+        samples
+    }
+
+    fn scan_of(&self, frame: usize, samples: &[Option<Sample>]) -> Scan {
+        Scan { frame, cloud: self.assemble(samples), stamp: self.stamp(frame), ground_truth: self.ground_truth(frame) }
+    }
+
+    fn range_image_of(&self, frame: usize, samples: &[Option<Sample>]) -> RangeImage {
+        let sensor = &self.config.sensor;
+        RangeImage {
+            frame,
+            stamp: self.stamp(frame),
+            beams: sensor.beams(),
+            column_times: (0..sensor.columns).map(|c| sensor.firing_time(c)).collect(),
+            cells: samples.iter().map(|s| s.map(|s| RangeReturn { range: s.range, intensity: s.intensity })).collect(),
+        }
     }
 
     /// All sweeps of the scenario, in order.
@@ -244,7 +324,7 @@ impl Simulator {
         let p = local * range;
         let reflectivity = world.objects()[hit.object as usize].reflectivity;
         let incidence = hit.hit.normal.dot(&ray.direction).abs() as f32;
-        Some(Sample { point: [p.x as f32, p.y as f32, p.z as f32], intensity: reflectivity * incidence })
+        Some(Sample { point: [p.x as f32, p.y as f32, p.z as f32], range, intensity: reflectivity * incidence })
     }
 
     /// The returns in firing order as a cloud with intensity, ring and time channels.

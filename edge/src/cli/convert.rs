@@ -2,9 +2,9 @@
 
 use std::path::PathBuf;
 
-use anyhow::Result;
-use edge::recording::{self, RecordingOptions};
-use edge::source::SourceSpec;
+use anyhow::{Result, bail};
+use edge::recording::{self, ConvertSummary, RecordingError, Scan};
+use edge::source::{Source, SourceSpec};
 
 use super::{SourceArgs, progress_bar};
 
@@ -16,30 +16,59 @@ pub struct ConvertArgs {
     /// Output directory (created if missing; must not hold scans already).
     #[arg(long)]
     out: PathBuf,
-    /// Convert at most this many scans.
+    /// Convert at most this many scans (required for a live udp: source).
     #[arg(long)]
     frames: Option<usize>,
 }
 
 /// `emr-edge convert`.
 pub fn convert(args: ConvertArgs) -> Result<()> {
-    match &args.source.input {
-        SourceSpec::Sim { scenario, robot } => super::sim::convert(scenario, *robot, args.frames, &args.out),
+    let reading = args.source.reading();
+    let summary = match &args.source.input {
+        SourceSpec::Sim { scenario, robot } => return super::sim::convert(scenario, *robot, args.frames, &args.out),
         SourceSpec::Recording(path) => {
-            let options = RecordingOptions { topic: args.source.topic.clone(), ..RecordingOptions::default() };
-            let rec = recording::open(path, &options)?;
-            let bar = progress_bar(None, "scans");
-            let scans = rec.take(args.frames.unwrap_or(usize::MAX));
-            let summary = recording::convert(scans, &args.out, |_| bar.inc(1))?;
-            bar.finish_and_clear();
-            println!(
-                "wrote {} scans ({} points, {} invalid points dropped) to {}",
-                summary.scans,
-                summary.points,
-                summary.dropped,
-                args.out.display()
-            );
-            Ok(())
+            let scans = recording::open(path, &reading)?.take(args.frames.unwrap_or(usize::MAX));
+            write(scans, &args)?
         }
+        SourceSpec::Udp(address) => {
+            if args.frames.is_none() {
+                bail!("udp:{address} streams without end: say how many scans to convert with --frames N");
+            }
+            let source = Source::open(&args.source.input, args.frames, &args.source.sim.config(), &reading)?;
+            // A live source yields no errors: a packet that does not decode is counted in its scan.
+            let scans = source.filter_map(Result::ok).map(|s| {
+                Ok::<_, RecordingError>(Scan {
+                    cloud: s.cloud,
+                    stamp: s.stamp,
+                    index: s.index,
+                    dropped: 0,
+                    gaps: s.gaps,
+                    partial: s.partial,
+                })
+            });
+            write(scans, &args)?
+        }
+    };
+    println!(
+        "wrote {} scans ({} points, {} invalid points dropped) to {}",
+        summary.scans,
+        summary.points,
+        summary.dropped,
+        args.out.display()
+    );
+    if summary.partial > 0 || summary.gaps > 0 {
+        println!(
+            "{} scans cover only part of a rotation; {} packets or columns were missing within scans",
+            summary.partial, summary.gaps
+        );
     }
+    Ok(())
+}
+
+/// Writes the scans with a progress bar.
+fn write(scans: impl Iterator<Item = Result<Scan, RecordingError>>, args: &ConvertArgs) -> Result<ConvertSummary> {
+    let bar = progress_bar(args.frames, "scans");
+    let summary = recording::convert(scans, &args.out, |_| bar.inc(1))?;
+    bar.finish_and_clear();
+    Ok(summary)
 }

@@ -53,7 +53,7 @@ pub fn odometry(args: OdometryArgs) -> Result<()> {
     }
     let sim = args.source.sim.config();
     let pipeline =
-        OdometryPipeline::new(&args.source.input, args.source.topic, args.max_frames, config, &sim, &args.out)?
+        OdometryPipeline::new(&args.source.input, args.source.reading(), args.max_frames, config, &sim, &args.out)?
             .with_loops(!args.no_loops);
     let live = Arc::new(Live::new());
     if let Some(path) = &args.record {

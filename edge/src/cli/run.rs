@@ -6,8 +6,10 @@ use std::sync::Arc;
 use anyhow::{Context, Result, bail};
 use bus::NetworkArgs;
 use clap::ValueEnum;
+use edge::args::PacketArgs;
 use edge::node::{self, NodeConfig, NodeSummary, Rate, SourceEnd};
 use edge::odometry::pipeline::{Tuning, recording_options};
+use edge::recording::RecordingOptions;
 use edge::source::SourceSpec;
 use proto::Fleet;
 
@@ -22,12 +24,15 @@ pub struct RunArgs {
     /// Robot id within the fleet [default: ROBOT of a sim:SCENARIO:ROBOT source, which it must match].
     #[arg(long)]
     robot: Option<u32>,
-    /// The source: a directory of scans, a .bag or .mcap file, or sim:SCENARIO:ROBOT.
+    /// The source: a directory of scans, a .bag, .mcap or .pcap/.pcapng file (pcap:FILE whatever
+    /// its name), udp:ADDRESS:PORT for a live sensor, or sim:SCENARIO:ROBOT.
     #[arg(long, value_name = "INPUT")]
     source: SourceSpec,
     /// Topic of sensor_msgs/PointCloud2 in a bag or MCAP file [default: the only one].
     #[arg(long)]
     topic: Option<String>,
+    #[command(flatten)]
+    packets: PacketArgs,
     /// Pace: realtime plays scans at their stamps, max as fast as the odometry goes.
     #[arg(long, value_enum, default_value_t = RateArg::Realtime)]
     rate: RateArg,
@@ -78,7 +83,10 @@ pub fn run(args: RunArgs) -> Result<()> {
     let config = NodeConfig {
         max_frames: args.max_frames,
         rate: args.rate.into(),
-        recording: recording_options(args.topic.clone(), &odometry),
+        recording: recording_options(
+            RecordingOptions { topic: args.topic.clone(), packets: args.packets.options(), ..Default::default() },
+            &odometry,
+        ),
         odometry,
         loops: !args.no_loops,
         linger: !args.exit_when_done,
@@ -121,7 +129,7 @@ fn summary_writer(path: PathBuf, robot: u32) -> SourceEnd {
     SourceEnd(Arc::new(move |s: &NodeSummary| {
         let json = serde_json::json!({
             "robot": robot, "frames": s.frames, "keyframes": s.keyframes, "published_bytes": s.published_bytes,
-            "loops": s.loops, "posegraph_revision": s.posegraph_revision,
+            "loops": s.loops, "posegraph_revision": s.posegraph_revision, "source_losses": s.source_losses,
         });
         let partial = path.with_extension("partial");
         let written = std::fs::write(&partial, json.to_string()).and_then(|()| std::fs::rename(&partial, &path));
@@ -140,5 +148,6 @@ fn robot_id(given: Option<u32>, source: &SourceSpec) -> Result<u32> {
         (Some(id), _) => Ok(id),
         (None, SourceSpec::Sim { robot, .. }) => Ok(*robot),
         (None, SourceSpec::Recording(path)) => bail!("--robot is required with a recording ({})", path.display()),
+        (None, SourceSpec::Udp(address)) => bail!("--robot is required with a live sensor (udp:{address})"),
     }
 }

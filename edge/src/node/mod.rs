@@ -34,7 +34,7 @@ use zenoh::qos::CongestionControl;
 use crate::loops::{self, LoopCloser, LoopError};
 use crate::odometry::{Odometry, OdometryConfig, OdometryError};
 use crate::recording::RecordingOptions;
-use crate::source::{Source, SourceError, SourceSpec};
+use crate::source::{Source, SourceError, SourceLosses, SourceSpec};
 use store::Store;
 use worker::{EncodedKeyframe, EncodedPoseGraph, Made, Registered, Worker};
 
@@ -151,6 +151,8 @@ pub struct NodeSummary {
     pub odometry_ms: Vec<f64>,
     /// What the node held of its keyframes when it stopped.
     pub held: Held,
+    /// What the source lost before the odometry (a live sensor's dropped scans, packet gaps).
+    pub source_losses: SourceLosses,
 }
 
 /// What a node holds of the keyframes it made, bytes, by its own count of its buffers: exact and
@@ -457,6 +459,9 @@ impl<'l> Outbox<'l> {
             "robot {}: {} scans, {} keyframes ({})",
             self.robot, self.summary.frames, self.summary.keyframes, self.summary.held
         );
+        for warning in self.summary.source_losses.warnings() {
+            warn!("robot {}: {warning}", self.robot);
+        }
     }
 
     /// Records one registered scan and publishes its keyframe, if any.
@@ -467,6 +472,7 @@ impl<'l> Outbox<'l> {
         s.stamps.push(scan.stamp);
         s.ground_truth.push(scan.ground_truth);
         s.odometry_ms.push(scan.odometry_ms);
+        s.source_losses.add(&scan.losses);
         if let Some(kf) = scan.keyframe {
             s.keyframe_poses.push(scan.pose);
             self.publish(kf).await?;

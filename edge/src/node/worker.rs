@@ -16,7 +16,7 @@ use tracing::{error, warn};
 use super::{NodeError, Rate};
 use crate::loops::LoopCloser;
 use crate::odometry::{Keyframe, Odometry};
-use crate::source::{Source, SourceScan};
+use crate::source::{Source, SourceLosses, SourceScan};
 use crate::wire;
 use cloud::memory::release_periodically;
 use cloud::scan_context::{ScanContext, ScanContextConfig};
@@ -36,6 +36,8 @@ pub(crate) struct Registered {
     pub posegraph: Option<EncodedPoseGraph>,
     /// Wall time of the odometry on this scan, milliseconds.
     pub odometry_ms: f64,
+    /// What the source lost of this scan, or before it.
+    pub losses: SourceLosses,
 }
 
 /// A `emr.v1.PoseGraphUpdate` protobuf encoding.
@@ -130,6 +132,8 @@ impl Worker {
     /// Odometry on one scan, and its keyframe's message if it made one (with the pose graph's when
     /// the keyframe closed a loop that changed it).
     fn register(&mut self, scan: SourceScan) -> Result<Registered, NodeError> {
+        let mut losses = SourceLosses::default();
+        losses.count(&scan);
         let watch = Stopwatch::start();
         let frame = self
             .odometry
@@ -169,6 +173,7 @@ impl Worker {
             keyframe,
             posegraph,
             odometry_ms,
+            losses,
         })
     }
 

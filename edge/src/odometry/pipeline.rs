@@ -24,7 +24,7 @@ use super::{Frame, Method, Odometry, OdometryConfig, OdometryError};
 use crate::loops::LoopError;
 use crate::loops::track::{LoopSummary, LoopTrack};
 use crate::recording::{RecordingOptions, RingModel, Spin, TimeModel};
-use crate::source::{Source, SourceError, SourceScan, SourceSpec};
+use crate::source::{Source, SourceError, SourceLosses, SourceScan, SourceSpec};
 use cloud::memory::{MemoryTrace, MemoryWatch, peak_rss_mb};
 use sim::SimConfig;
 
@@ -114,25 +114,25 @@ impl Tuning {
 /// ([`super::voxel_features`], what a scan without any ring channel gets) see ring traces as lines
 /// and lose the warehouse (0.55 m ATE against 0.16 m every 2nd scan, 6.3 m against 0.04 m every
 /// 5th).
-pub fn recording_options(topic: Option<String>, config: &OdometryConfig) -> RecordingOptions {
+/// `reading` holds what the user chose (the topic, how packets decode); the channels are set here.
+pub fn recording_options(reading: RecordingOptions, config: &OdometryConfig) -> RecordingOptions {
     RecordingOptions {
-        topic,
         rings: RingModel::Auto,
         times: TimeModel::Azimuth { period_s: config.scan_period, spin: Spin::Detect },
-        ..RecordingOptions::default()
+        ..reading
     }
 }
 
-/// Opens `input` for the odometry (`topic` picks a bag's or MCAP file's point clouds, `sim`
-/// configures a simulated sensor), at most `max_frames` scans.
+/// Opens `input` for the odometry (`reading` picks a bag's or MCAP file's point clouds and says
+/// how packets decode, `sim` configures a simulated sensor), at most `max_frames` scans.
 pub fn open(
     input: &SourceSpec,
-    topic: Option<String>,
+    reading: RecordingOptions,
     max_frames: Option<usize>,
     config: &OdometryConfig,
     sim: &SimConfig,
 ) -> Result<Source, SourceError> {
-    Source::open(input, max_frames, sim, &recording_options(topic, config))
+    Source::open(input, max_frames, sim, &recording_options(reading, config))
 }
 
 /// The scans of a source under the error policy: undecodable scans skipped with a warning (and
@@ -141,6 +141,7 @@ pub struct Scans {
     source: Source,
     damage: Option<SourceError>,
     skipped: Vec<SkippedScan>,
+    losses: SourceLosses,
 }
 
 /// A scan the source gave but could not decode.
@@ -153,7 +154,12 @@ pub struct SkippedScan {
 impl Scans {
     /// The scans of `source`.
     pub fn new(source: Source) -> Self {
-        Scans { source, damage: None, skipped: Vec::new() }
+        Scans { source, damage: None, skipped: Vec::new(), losses: SourceLosses::default() }
+    }
+
+    /// What the source lost so far.
+    pub fn losses(&self) -> SourceLosses {
+        self.losses
     }
 
     /// The scans skipped so far, in order.
@@ -176,7 +182,10 @@ impl Iterator for Scans {
         }
         loop {
             match self.source.next()? {
-                Ok(scan) => return Some(scan),
+                Ok(scan) => {
+                    self.losses.count(&scan);
+                    return Some(scan);
+                }
                 Err(e) if !e.is_fatal() => {
                     tracing::warn!("skipped: {e}");
                     self.skipped.push(SkippedScan { reason: e.to_string() });
@@ -315,6 +324,8 @@ pub struct OdometryReport {
     pub path_length_m: Option<f64>,
     /// Scans the source gave but could not be decoded, each with its file and reason.
     pub skipped_scans: Vec<SkippedScan>,
+    /// What a packet source lost before decoding.
+    pub source_losses: SourceLosses,
     /// With loop closure: its figures.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub loops: Option<LoopSummary>,
@@ -348,13 +359,13 @@ impl OdometryPipeline {
     /// Opens the source ([`open`]) and creates the output directory; no loop closure.
     pub fn new(
         input: &SourceSpec,
-        topic: Option<String>,
+        reading: RecordingOptions,
         max_frames: Option<usize>,
         config: OdometryConfig,
         sim: &SimConfig,
         out: &Path,
     ) -> Result<Self, PipelineError> {
-        let source = open(input, topic, max_frames, &config, sim)?;
+        let source = open(input, reading, max_frames, &config, sim)?;
         std::fs::create_dir_all(out).map_err(|source| PipelineError::CreateDir { path: out.to_owned(), source })?;
         Ok(OdometryPipeline { source, config, loops: false, out: out.to_owned() })
     }
@@ -388,6 +399,9 @@ impl OdometryPipeline {
         })?;
         let summary = pass.stats.summary();
         warn_unhealthy(&summary);
+        for warning in scans.losses().warnings() {
+            tracing::warn!("{warning}");
+        }
         let peak_rss_mb = peak_rss_mb();
         let rss_mb = memory.finish();
         let mut estimate = pass.estimate.clone();
@@ -410,6 +424,7 @@ impl OdometryPipeline {
             ate_rmse_m: accuracy.as_ref().map(|a| a.ate),
             path_length_m: accuracy.as_ref().map(|a| a.path_length_m),
             skipped_scans: scans.skipped().to_vec(),
+            source_losses: scans.losses(),
             loops: track.as_ref().map(LoopTrack::summary),
             odometry_ate_rmse_m: odometry_accuracy.map(|a| a.ate),
         };

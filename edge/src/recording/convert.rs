@@ -1,15 +1,17 @@
 //! Converting a recording to the KITTI layout the rest of the project reads.
 //!
 //! `DIR/velodyne/NNNNNN.bin` holds scan N (numbered from 0 in the order written) as little-endian
-//! f32 `x y z intensity` (intensity 0 where the recording has none; ring and time are not kept);
-//! `DIR/times.txt` holds one stamp per scan, in seconds relative to the first scan (as the
-//! simulator writes it), with microsecond resolution.
+//! f32 `x y z intensity` (intensity 0 where the recording has none). A scan that carries rings or
+//! per-point times (decoded packets, most driver clouds) is written as `NNNNNN.pcd` (binary)
+//! instead, which keeps them: the motion compensation needs the times. `DIR/times.txt` holds one
+//! stamp per scan, in seconds relative to the first scan (as the simulator writes it), with
+//! microsecond resolution.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use cloud::formats::{FileFormat, FormatError, write_cloud};
+use cloud::formats::{FileFormat, FormatError, PcdEncoding, write_cloud};
 
 use super::{RecordingError, Scan};
 
@@ -22,6 +24,10 @@ pub struct ConvertSummary {
     pub points: usize,
     /// Invalid points dropped, over all scans.
     pub dropped: usize,
+    /// Scans covering only part of a rotation (a packet capture's first and last).
+    pub partial: usize,
+    /// Packets or columns missing within scans.
+    pub gaps: usize,
     /// Stamp of the first scan, seconds (the zero of `times.txt`).
     pub first_stamp: Option<f64>,
 }
@@ -38,7 +44,7 @@ pub enum ConvertError {
         source: std::io::Error,
     },
     /// The output already holds scans, which this conversion would mix with its own.
-    #[error("{}: already holds .bin scans; convert into an empty directory", path.display())]
+    #[error("{}: already holds scans; convert into an empty directory", path.display())]
     NotEmpty {
         /// The `velodyne/` directory.
         path: PathBuf,
@@ -79,12 +85,20 @@ pub fn convert(
                 return Err(ConvertError::Recording { summary, source: Box::new(source) });
             }
         };
-        write_cloud(&velodyne.join(format!("{:06}.bin", summary.scans)), &scan.cloud, FileFormat::KittiBin)?;
+        let format = if scan.cloud.ring.is_some() || scan.cloud.time.is_some() {
+            FileFormat::Pcd(PcdEncoding::Binary)
+        } else {
+            FileFormat::KittiBin
+        };
+        let name = format!("{:06}.{}", summary.scans, format.extension());
+        write_cloud(&velodyne.join(name), &scan.cloud, format)?;
         let first = *summary.first_stamp.get_or_insert(scan.stamp);
         writeln!(times, "{:.6}", scan.stamp - first).map_err(output)?;
         summary.scans += 1;
         summary.points += scan.cloud.len();
         summary.dropped += scan.dropped;
+        summary.partial += usize::from(scan.partial);
+        summary.gaps += scan.gaps;
         progress(&scan);
     }
     times.flush().map_err(output)?;
@@ -96,7 +110,7 @@ fn prepare(velodyne: &Path) -> Result<(), ConvertError> {
     let output = |source| ConvertError::Output { path: velodyne.to_owned(), source };
     std::fs::create_dir_all(velodyne).map_err(output)?;
     for entry in std::fs::read_dir(velodyne).map_err(output)? {
-        if entry.map_err(output)?.path().extension().is_some_and(|e| e == "bin") {
+        if entry.map_err(output)?.path().extension().is_some_and(|e| e == "bin" || e == "pcd") {
             return Err(ConvertError::NotEmpty { path: velodyne.to_owned() });
         }
     }

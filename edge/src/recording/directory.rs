@@ -46,7 +46,14 @@ impl DirectorySource {
             Err(e) => return Some(Err(RecordingErrorKind::ScanFile { index, source: e })),
         };
         let stamp = self.stamps.get(index).copied().unwrap_or(0.0);
-        Some(Ok(RawScan { cloud: loaded.cloud, stamp, index, dropped: loaded.dropped_non_finite }))
+        Some(Ok(RawScan {
+            cloud: loaded.cloud,
+            stamp,
+            index,
+            dropped: loaded.dropped_non_finite,
+            gaps: 0,
+            partial: false,
+        }))
     }
 }
 

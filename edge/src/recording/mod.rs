@@ -17,9 +17,11 @@
 //! corruption) is reported after every scan before it, and ends the iteration.
 
 mod bag;
+pub mod capture;
 mod convert;
 mod directory;
 mod mcap_file;
+mod packet_scans;
 pub mod pointcloud2;
 pub mod rings;
 pub mod sweep_time;
@@ -30,6 +32,7 @@ use cloud::PointCloud;
 use cloud::formats::FormatError;
 
 pub use convert::{ConvertError, ConvertSummary, convert};
+pub use packet_scans::{PacketDecoder, PacketOptions, assembler_for, rotation_cloud};
 pub use pointcloud2::MessageError;
 pub use rings::{ClusterOptions, RingClusters, RingModel, cluster_rings};
 pub use sweep_time::{Spin, TimeModel, times_from_azimuth};
@@ -47,6 +50,11 @@ pub struct Scan {
     pub index: usize,
     /// Points dropped as invalid (non-finite, or at the origin when that is dropped).
     pub dropped: usize,
+    /// Packets (Velodyne) or columns (Ouster) of the rotation lost before decoding; 0 for
+    /// recordings of point clouds.
+    pub gaps: usize,
+    /// The scan covers only part of a rotation: a capture's first or last.
+    pub partial: bool,
 }
 
 /// Settings of [`open`].
@@ -63,6 +71,8 @@ pub struct RecordingOptions {
     /// Drop points exactly at (0, 0, 0), which organised clouds (Ouster, Livox) use for "no
     /// return". Default `true`.
     pub drop_origin_points: bool,
+    /// How to decode a capture of LiDAR packets.
+    pub packets: PacketOptions,
 }
 
 impl Default for RecordingOptions {
@@ -73,6 +83,7 @@ impl Default for RecordingOptions {
             times: TimeModel::None,
             directory_period_s: 0.1,
             drop_origin_points: true,
+            packets: PacketOptions::default(),
         }
     }
 }
@@ -86,10 +97,13 @@ pub enum RecordingKind {
     Bag,
     /// An MCAP file.
     Mcap,
+    /// A capture of LiDAR packets (pcap or pcapng).
+    Pcap,
 }
 
 impl RecordingKind {
-    /// The kind of `input`: a directory, else by extension (case-insensitive).
+    /// The kind of `input`: a directory, else by extension (case-insensitive), else a packet
+    /// capture if its first bytes say so (`tcpdump -w` names no extension).
     pub fn of(input: &Path) -> Result<Self, RecordingErrorKind> {
         if input.is_dir() {
             return Ok(RecordingKind::Directory);
@@ -98,7 +112,9 @@ impl RecordingKind {
         match extension.as_deref() {
             Some("bag") => Ok(RecordingKind::Bag),
             Some("mcap") => Ok(RecordingKind::Mcap),
+            Some("pcap" | "pcapng") => Ok(RecordingKind::Pcap),
             _ if !input.exists() => Err(RecordingErrorKind::Io(std::io::ErrorKind::NotFound.into())),
+            _ if capture::is_capture(input) => Ok(RecordingKind::Pcap),
             _ => Err(RecordingErrorKind::Unsupported),
         }
     }
@@ -143,9 +159,15 @@ pub enum RecordingErrorKind {
     /// The file or directory could not be read.
     #[error("cannot read: {0}")]
     Io(std::io::Error),
-    /// Neither a directory nor a `.bag` or `.mcap` file.
-    #[error("not a recording: expected a directory of scans, a .bag or a .mcap file")]
+    /// Neither a directory nor a `.bag`, `.mcap`, `.pcap` or `.pcapng` file.
+    #[error("not a recording: expected a directory of scans, a .bag, .mcap, .pcap or .pcapng file")]
     Unsupported,
+    /// A packet capture that cannot be read on; the scans before were delivered.
+    #[error(transparent)]
+    Capture(capture::CaptureError),
+    /// The sensor's metadata or calibration cannot be read.
+    #[error("sensor setup: {0}")]
+    SensorSetup(String),
     /// A directory without scan files.
     #[error("no .bin, .pcd or .ply scans in the directory (nor in its velodyne/ folder)")]
     NoScans,
@@ -291,6 +313,8 @@ struct RawScan {
     stamp: f64,
     index: usize,
     dropped: usize,
+    gaps: usize,
+    partial: bool,
 }
 
 /// A serialised PointCloud2 as a bag or MCAP source delivers it.
@@ -310,7 +334,14 @@ impl RawMessage {
         let message = pointcloud2::decode(&self.data, self.format).map_err(fail)?;
         let converted = message.to_cloud().map_err(fail)?;
         let stamp = if message.stamp != 0.0 { message.stamp } else { self.receive_time };
-        Ok(RawScan { cloud: converted.cloud, stamp, index: self.index, dropped: converted.dropped_non_finite })
+        Ok(RawScan {
+            cloud: converted.cloud,
+            stamp,
+            index: self.index,
+            dropped: converted.dropped_non_finite,
+            gaps: 0,
+            partial: false,
+        })
     }
 }
 
@@ -319,6 +350,7 @@ enum Source {
     Directory(directory::DirectorySource),
     Bag(bag::BagSource),
     Mcap(mcap_file::McapSource),
+    Packets(packet_scans::PacketScans),
 }
 
 impl Source {
@@ -327,6 +359,7 @@ impl Source {
             Source::Directory(d) => d.next_scan(),
             Source::Bag(b) => b.next_message().map(|m| m.and_then(RawMessage::decode)),
             Source::Mcap(m) => m.next_message().map(|m| m.and_then(RawMessage::decode)),
+            Source::Packets(p) => p.next_scan(),
         }
     }
 }
@@ -369,6 +402,9 @@ pub fn open(input: &Path, options: &RecordingOptions) -> Result<Recording, Recor
             let topic = mcap_file::list_topics(input).and_then(|l| l.choose(options.topic.as_deref())).map_err(fail)?;
             (Source::Mcap(mcap_file::McapSource::open(input, &topic).map_err(fail)?), Some(topic))
         }
+        RecordingKind::Pcap => {
+            (Source::Packets(packet_scans::PacketScans::open(input, &options.packets).map_err(fail)?), None)
+        }
     };
     let channels = ChannelDeriver::new(options.clone());
     Ok(Recording { path: input.to_owned(), kind, topic, options: options.clone(), channels, source, done: false })
@@ -382,6 +418,7 @@ pub fn list_topics(input: &Path) -> Result<Vec<TopicInfo>, RecordingError> {
         RecordingKind::Directory => Ok(Vec::new()),
         RecordingKind::Bag => bag::list_topics(input).map(|l| l.topics).map_err(fail),
         RecordingKind::Mcap => mcap_file::list_topics(input).map(|l| l.topics).map_err(fail),
+        RecordingKind::Pcap => Ok(Vec::new()),
     }
 }
 
@@ -425,12 +462,12 @@ impl Recording {
 
     /// The common steps: drop invalid points, derive missing channels.
     fn finish(&mut self, raw: RawScan) -> Scan {
-        let RawScan { mut cloud, stamp, index, mut dropped } = raw;
+        let RawScan { mut cloud, stamp, index, mut dropped, gaps, partial } = raw;
         if self.options.drop_origin_points {
             dropped += drop_origin_points(&mut cloud);
         }
         self.channels.derive(&mut cloud);
-        Scan { cloud, stamp, index, dropped }
+        Scan { cloud, stamp, index, dropped, gaps, partial }
     }
 }
 

@@ -69,7 +69,7 @@ pub fn loops(args: LoopsArgs) -> Result<()> {
         }
         let mut track = LoopTrack::new(config.loops.clone());
         let mut odometry = Odometry::new(config.clone())?;
-        let scans = pipeline::Scans::new(pipeline::open(source, None, args.max_frames, &config, &sim)?);
+        let scans = pipeline::Scans::new(pipeline::open(source, Default::default(), args.max_frames, &config, &sim)?);
         let watch = Stopwatch::start();
         // One core, as a robot's computer would give it.
         let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;

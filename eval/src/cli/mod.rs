@@ -5,6 +5,7 @@ mod load;
 mod loops;
 mod merge;
 mod odometry;
+mod packets;
 mod posegraph;
 mod report;
 mod robustness;
@@ -93,6 +94,16 @@ pub enum Command {
     /// loops accepted, false loops (more than 0.3 m or 2 deg from the true relative pose), loop
     /// milliseconds per keyframe on one core.
     Loops(LoopsArgs),
+    /// LiDAR packet decoding: every capture of DIR decoded from memory on one core, against the
+    /// time the sensor took to send it.
+    Packets {
+        /// Directory of .pcap / .pcapng captures (Ouster metadata beside each as NAME.json).
+        #[arg(default_value = "../shared/data/lidar_packets")]
+        data: PathBuf,
+        /// Timed passes per capture (the median is reported).
+        #[arg(long, default_value_t = 50)]
+        repeat: usize,
+    },
     /// Fine registration (GICP, VGICP): median time per registration on one thread and on all, and
     /// the error against the reference pose, on DIR/{source,target}.ply and DIR/T_target_source.txt.
     Gicp {
@@ -149,7 +160,8 @@ pub fn run(command: Command) -> Result<()> {
         Command::Odometry { source, tuning, frames, runs } => {
             let config = Tuning::from(&tuning).load()?;
             let sim = source.sim.config();
-            let scans = pipeline::read_all(pipeline::open(&source.input, source.topic, Some(frames), &config, &sim)?)?;
+            let scans =
+                pipeline::read_all(pipeline::open(&source.input, source.reading(), Some(frames), &config, &sim)?)?;
             println!("{}", odometry::odometry(&scans, &config, runs)?);
         }
         Command::Robustness(args) => robustness::robustness(args)?,
@@ -160,6 +172,7 @@ pub fn run(command: Command) -> Result<()> {
         Command::Merge(args) => merge::merge(args)?,
         Command::Load(args) => load::load(args)?,
         Command::Report(args) => report::report(args)?,
+        Command::Packets { data, repeat } => println!("{}", packets::packets(&data, repeat)?),
         Command::Gicp { data, runs } => println!("{}", eval::registration::gicp(&data, runs)?),
         Command::Global { data, runs } => {
             let (source, target, reference) =

@@ -84,7 +84,7 @@ pub fn kitti_every(dir: &Path, start: usize, every: usize) -> Result<Case, CaseE
     let every = every.max(1);
     let truth_path = dir.join("poses_velodyne.txt");
     let truth = read_truth(&truth_path)?;
-    let options = recording_options(None, &OdometryConfig::preset(Preset::Outdoor));
+    let options = recording_options(Default::default(), &OdometryConfig::preset(Preset::Outdoor));
     let mut scans = Vec::new();
     for scan in recording::open(dir, &options)? {
         let scan = scan?;
@@ -93,7 +93,15 @@ pub fn kitti_every(dir: &Path, start: usize, every: usize) -> Result<Case, CaseE
         }
         let pose = truth.poses.get(scan.index).copied();
         let pose = pose.ok_or_else(|| CaseError::NoTruth { path: truth_path.clone(), index: scan.index })?;
-        scans.push(SourceScan { cloud: scan.cloud, stamp: scan.stamp, index: scan.index, ground_truth: Some(pose) });
+        scans.push(SourceScan {
+            cloud: scan.cloud,
+            stamp: scan.stamp,
+            index: scan.index,
+            ground_truth: Some(pose),
+            gaps: 0,
+            partial: false,
+            dropped_before: 0,
+        });
     }
     non_empty(Case {
         name: format!("kitti-{start}-every-{every}"),
@@ -194,10 +202,7 @@ pub fn simulated(spec: &SimCase) -> Result<Case, CaseError> {
     let sim = simulator(spec)?;
     let first = (spec.start_s * spec.rate_hz).round() as usize;
     let frames = (0..spec.scans).map(|i| first + i * spec.every.max(1));
-    let scans = frames
-        .map(|f| sim.scan(f))
-        .map(|s| SourceScan { cloud: s.cloud, stamp: s.stamp, index: s.frame, ground_truth: Some(s.ground_truth) })
-        .collect();
+    let scans = frames.map(|f| sim.scan(f)).map(SourceScan::from).collect();
     non_empty(Case {
         name: format!("sim-{}-{}hz-every-{}", spec.sensor, spec.rate_hz, spec.every),
         class: "sim".into(),
@@ -251,7 +256,7 @@ fn shuffle(cloud: &cloud::PointCloud, rng: &mut SplitMix) -> cloud::PointCloud {
 /// The scans as the odometry is to see them: channels derived where the case asks for it.
 pub(super) fn prepared(case: &Case) -> Vec<SourceScan> {
     let config = OdometryConfig { scan_period: case.scan_period, ..OdometryConfig::preset(case.preset) };
-    let options = pipeline::recording_options(None, &config);
+    let options = pipeline::recording_options(Default::default(), &config);
     let mut scans = case.scans.clone();
     if case.derive_channels {
         let mut channels = recording::ChannelDeriver::new(options);
