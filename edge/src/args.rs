@@ -81,8 +81,8 @@ pub struct PacketArgs {
     /// second, or both.
     #[arg(long, value_enum, default_value_t = ReturnChoice::First)]
     pub returns: ReturnChoice,
-    /// The sensor's data port [default: the port of the first rotation decoded; a live source
-    /// gets only its own port's packets].
+    /// The sensor's data port in a capture that holds two [default: the port of the first
+    /// rotation decoded]; a live source gets only the packets sent to its own port.
     #[arg(long)]
     pub port: Option<u16>,
 }

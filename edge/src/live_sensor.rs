@@ -71,13 +71,9 @@ impl std::fmt::Debug for LiveSensor {
 }
 
 impl LiveSensor {
-    /// Binds `address` (the local address the sensor sends to) and starts receiving; `port` as
-    /// [`crate::recording::PacketOptions::port`].
-    pub fn start(
-        address: SocketAddr,
-        assembler: Box<dyn Assembler + Send>,
-        port: Option<u16>,
-    ) -> std::io::Result<LiveSensor> {
+    /// Binds `address` (the local address the sensor sends to) and starts receiving: every
+    /// datagram the socket gives was sent to its port, so there is no other port to tell apart.
+    pub fn start(address: SocketAddr, assembler: Box<dyn Assembler + Send>) -> std::io::Result<LiveSensor> {
         let socket = UdpSocket::bind(address)?;
         socket.set_read_timeout(Some(POLL))?;
         let address = socket.local_addr()?;
@@ -86,7 +82,7 @@ impl LiveSensor {
         let stop = Arc::new(AtomicBool::new(false));
         let receiver = Receiving {
             socket,
-            decoder: PacketDecoder::new(assembler, port.or(Some(address.port()))),
+            decoder: PacketDecoder::new(assembler, None),
             port: address.port(),
             sender,
             counters: counters.clone(),

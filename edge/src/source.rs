@@ -244,7 +244,7 @@ impl Source {
                 let fail = |e: std::io::Error| SourceError::Live { address: *address, reason: e.to_string() };
                 let assembler = recording::assembler_for(None, &options.packets)
                     .map_err(|e| SourceError::Live { address: *address, reason: e.to_string() })?;
-                let sensor = LiveSensor::start(*address, assembler, options.packets.port).map_err(fail)?;
+                let sensor = LiveSensor::start(*address, assembler).map_err(fail)?;
                 Ok(Source { inner: Inner::Live { sensor, next: 0 }, len: frames, limit: frames, given: 0 })
             }
         }

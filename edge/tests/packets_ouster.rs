@@ -6,52 +6,24 @@ use std::path::Path;
 
 use edge::packets::ouster::{Metadata, MetadataError, OusterAssembler, Profile};
 use edge::packets::{Assembler, PacketError, Return, ReturnChoice, Rotation};
+use edge::recording::capture::{Capture, Datagram};
 use serde_json::{Value, json};
 use testkit::{Rng, shared_data};
 
 // ---------------------------------------------------------------------------------------------
 // Real captures against ouster-sdk 1.0.1's XYZLut.
 
-/// One UDP datagram of a capture.
-struct Datagram {
-    port: u16,
-    time: f64,
-    payload: Vec<u8>,
-}
-
-/// The UDP payloads of a classic pcap of Ethernet frames holding unfragmented IPv4.
+/// The UDP datagrams of a capture, read by the product's capture reader (itself tested against
+/// captures written byte by byte in `capture.rs`).
 fn udp_payloads(path: &Path) -> Vec<Datagram> {
-    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
-    let nanosecond_stamps = match u32_at(0) {
-        0xa1b2_c3d4 => false,
-        0xa1b2_3c4d => true,
-        magic => panic!("{}: not a little-endian classic pcap (magic {magic:#x})", path.display()),
-    };
-    let mut datagrams = Vec::new();
-    let mut at = 24;
-    while at + 16 <= bytes.len() {
-        let (seconds, fraction, stored) = (u32_at(at), u32_at(at + 4), u32_at(at + 8) as usize);
-        let frame = &bytes[at + 16..at + 16 + stored];
-        at += 16 + stored;
-        let is_ipv4_udp = frame[12..14] == [0x08, 0x00] && frame[14 + 9] == 17;
-        if !is_ipv4_udp {
-            continue;
-        }
-        let udp = 14 + usize::from(frame[14] & 0x0f) * 4;
-        let port = u16::from_be_bytes([frame[udp + 2], frame[udp + 3]]);
-        let unit = if nanosecond_stamps { 1e-9 } else { 1e-6 };
-        let time = f64::from(seconds) + f64::from(fraction) * unit;
-        datagrams.push(Datagram { port, time, payload: frame[udp + 8..].to_vec() });
-    }
-    datagrams
+    Capture::open(path).unwrap().collect::<Result<_, _>>().unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 /// The lidar port: the metadata's, else the port of the datagrams of a lidar packet's size.
 fn lidar_port(metadata: &Metadata, datagrams: &[Datagram]) -> u16 {
     metadata.udp_port_lidar.unwrap_or_else(|| {
         let packet = datagrams.iter().find(|d| d.payload.len() == metadata.lidar_packet_bytes());
-        packet.expect("no datagram of a lidar packet's size").port
+        packet.expect("no datagram of a lidar packet's size").destination_port
     })
 }
 
@@ -110,9 +82,9 @@ fn check_capture(name: &str) {
     let metadata = Metadata::from_json(&text).unwrap();
     let datagrams = udp_payloads(&folder.join(format!("{name}.pcap")));
     let port = lidar_port(&metadata, &datagrams);
-    let lidar: Vec<&Datagram> = datagrams.iter().filter(|d| d.port == port).collect();
+    let lidar: Vec<&Datagram> = datagrams.iter().filter(|d| d.destination_port == port).collect();
     let mut assembler = OusterAssembler::new(metadata.clone(), ReturnChoice::First);
-    let scans = rotations(&mut assembler, lidar.iter().map(|d| (d.payload.as_slice(), d.time)));
+    let scans = rotations(&mut assembler, lidar.iter().map(|d| (d.payload.as_slice(), d.received)));
 
     let mut references: Vec<_> = std::fs::read_dir(folder.join(format!("{name}_reference")))
         .unwrap()
@@ -180,13 +152,13 @@ fn the_captures_are_whole_frames_without_gaps() {
         // The IMU packets go to the assembler too: they are skipped, not errors.
         let mut scans = Vec::new();
         for datagram in &datagrams {
-            scans.extend(assembler.push(&datagram.payload, datagram.time).unwrap());
+            scans.extend(assembler.push(&datagram.payload, datagram.received).unwrap());
         }
         scans.extend(assembler.finish());
         assert_eq!(scans.len(), 1, "{name}");
         assert_eq!((scans[0].gaps, scans[0].partial), (0, false), "{name}");
         let first_lidar = datagrams.iter().find(|d| d.payload.len() != 48).unwrap();
-        assert_eq!(scans[0].stamp, first_lidar.time, "{name}");
+        assert_eq!(scans[0].stamp, first_lidar.received, "{name}");
     }
 }
 

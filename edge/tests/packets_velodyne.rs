@@ -3,26 +3,19 @@
 
 use edge::packets::velodyne::{Calibration, CalibrationError, Model, VelodyneAssembler, VelodyneOptions};
 use edge::packets::{Assembler, PacketError, Return, ReturnChoice, Rotation};
+use edge::recording::capture::Capture;
 use std::path::Path;
 use testkit::Rng;
 
 // ---------------------------------------------------------------------------------------------
 // Reading the captures and the reference scans.
 
-/// The UDP payloads of a classic pcap of Ethernet / IPv4 / UDP frames, with their capture times.
+/// The UDP payloads of a capture with their capture times, read by the product's capture reader
+/// (itself tested against captures written byte by byte in `capture.rs`).
 fn udp_payloads(path: &Path) -> Vec<(f64, Vec<u8>)> {
-    let bytes = std::fs::read(path).unwrap_or_else(|error| panic!("{}: {error}", path.display()));
-    let le32 = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
-    let mut payloads = Vec::new();
-    let mut at = 24;
-    while at + 16 <= bytes.len() {
-        let (seconds, micros, captured) = (le32(at), le32(at + 4), le32(at + 8) as usize);
-        let frame = &bytes[at + 16..at + 16 + captured];
-        let ip_header = usize::from(frame[14] & 0x0F) * 4;
-        payloads.push((f64::from(seconds) + f64::from(micros) * 1e-6, frame[14 + ip_header + 8..].to_vec()));
-        at += 16 + captured;
-    }
-    payloads
+    let datagrams = Capture::open(path).unwrap().collect::<Result<Vec<_>, _>>();
+    let datagrams = datagrams.unwrap_or_else(|error| panic!("{}: {error}", path.display()));
+    datagrams.into_iter().map(|d| (d.received, d.payload)).collect()
 }
 
 /// One point of a reference scan: x y z intensity time ring (time from the scan's last packet).

@@ -357,8 +357,7 @@ fn packets_sent_over_udp_arrive_as_the_simulated_rotations() {
     let dir = tempfile::tempdir().unwrap();
     for run in runs() {
         let options = run.options(dir.path());
-        let live =
-            LiveSensor::start("127.0.0.1:0".parse().unwrap(), assembler_for(None, &options).unwrap(), None).unwrap();
+        let live = LiveSensor::start("127.0.0.1:0".parse().unwrap(), assembler_for(None, &options).unwrap()).unwrap();
         let mut sender = UdpSender::new(live.address(), Pace::Realtime).unwrap();
         let packets = run.packets.clone();
         let sending = std::thread::spawn(move || sender.send_all(&packets).map(|()| sender.sent()));
