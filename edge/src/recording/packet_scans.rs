@@ -46,16 +46,11 @@ pub fn assembler_for(
     let beside = |extension: &str| capture.map(|c| c.with_extension(extension)).filter(|b| b.is_file());
     let metadata = options.metadata.clone().or_else(|| beside("json"));
     if let Some(path) = metadata {
-        let text = read_text(&path)?;
-        let metadata = Metadata::from_json(&text)
-            .map_err(|e| RecordingErrorKind::SensorSetup(format!("{}: {e}", path.display())))?;
+        let metadata = parse_file(&path, Metadata::from_json)?;
         return Ok(Box::new(OusterAssembler::new(metadata, options.returns)));
     }
     let calibration = match options.calibration.clone().or_else(|| beside("yaml")) {
-        Some(path) => Some(
-            Calibration::from_yaml(&read_text(&path)?)
-                .map_err(|e| RecordingErrorKind::SensorSetup(format!("{}: {e}", path.display())))?,
-        ),
+        Some(path) => Some(parse_file(&path, Calibration::from_yaml)?),
         None => None,
     };
     let velodyne =
@@ -64,8 +59,14 @@ pub fn assembler_for(
     Ok(Box::new(assembler))
 }
 
-fn read_text(path: &Path) -> Result<String, RecordingErrorKind> {
-    std::fs::read_to_string(path).map_err(|e| RecordingErrorKind::SensorSetup(format!("{}: {e}", path.display())))
+/// A sensor file read and parsed, either failure naming the file.
+fn parse_file<T, E: std::fmt::Display>(
+    path: &Path,
+    parse: impl FnOnce(&str) -> Result<T, E>,
+) -> Result<T, RecordingErrorKind> {
+    let fail = |e: &dyn std::fmt::Display| RecordingErrorKind::SensorSetup(format!("{}: {e}", path.display()));
+    let text = std::fs::read_to_string(path).map_err(|e| fail(&e))?;
+    parse(&text).map_err(|e| fail(&e))
 }
 
 /// Datagrams in, rotations out: the part of a packet source that is the same for a capture and a
