@@ -17,6 +17,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use cloud::trajectory::{self, Ate, Trajectory};
+use edge::node::state_dir::StateDir;
 use edge::node::{self, NodeConfig, NodeSummary, Rate, SourceEnd};
 use edge::odometry::Method;
 use edge::source::SourceSpec;
@@ -28,6 +29,7 @@ use station::joint::{self, JointConfig};
 use station::merge::MergeConfig;
 use station::merge::files::{self, FilesError};
 use station::service::client::{global_map_cloud, placements_json};
+use station::service::fleet_state::Member;
 use station::service::joint_input::joint_input;
 use station::service::merge_job::RobotSnapshot;
 use station::service::{Station, StationConfig, StationError};
@@ -55,6 +57,38 @@ pub struct DemoConfig {
     pub loops: bool,
     /// Seed of the simulated sensors' range noise and dropouts (default 0).
     pub seed: u64,
+    /// Stop one robot's edge mid-run and start a new session of it later (default none).
+    pub restart: Option<Restart>,
+}
+
+/// A robot that restarts: its edge stops after scan `scan` (its first session, 0) and a new session
+/// (1) starts [`RESTART_GAP`] scans later, in an odometry frame of its own, keeping its keyframes in
+/// a state directory under the output as a robot does on disk.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Restart {
+    /// The robot, 1-based.
+    pub robot: u32,
+    /// Scans its first session reads.
+    pub scan: usize,
+}
+
+/// Scans a restarted robot moves on while its edge is down: it does not start again where it stopped.
+pub const RESTART_GAP: usize = 50;
+
+impl std::str::FromStr for Restart {
+    type Err = String;
+
+    /// `ROBOT@SCAN`, as `emr-demo run --restart 1@600` takes it.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = || format!("{s:?}: expected ROBOT@SCAN, e.g. 1@600");
+        let (robot, scan) = s.split_once('@').ok_or_else(bad)?;
+        let robot: u32 = robot.trim().parse().map_err(|_| bad())?;
+        let scan: usize = scan.trim().parse().map_err(|_| bad())?;
+        if robot == 0 || scan == 0 {
+            return Err(format!("{s:?}: the robot is 1-based and the first session reads at least one scan"));
+        }
+        Ok(Restart { robot, scan })
+    }
 }
 
 impl DemoConfig {
@@ -76,6 +110,7 @@ impl DemoConfig {
             method: Method::Floam,
             loops: true,
             seed: 0,
+            restart: None,
         }
     }
 }
@@ -95,6 +130,16 @@ pub enum DemoError {
     /// The station failed.
     #[error(transparent)]
     Station(#[from] StationError),
+    /// `restart` names a robot that is not run, or a scan past the run's end.
+    #[error("--restart {robot}@{scan}: {reason}")]
+    Restart {
+        /// The robot named.
+        robot: u32,
+        /// The scan named.
+        scan: usize,
+        /// What is wrong.
+        reason: String,
+    },
     /// An edge failed.
     #[error("robot {robot}: {source}")]
     Edge {
@@ -153,6 +198,27 @@ pub struct RobotResult {
     pub merged: bool,
     /// Wall time of the odometry on each scan, milliseconds.
     pub odometry_ms: Vec<f64>,
+    /// Each session of the robot (one unless it restarted), oldest first.
+    pub sessions: Vec<SessionResult>,
+}
+
+/// One session of a robot: what an edge did between a start and a stop.
+#[derive(Clone, Debug)]
+pub struct SessionResult {
+    /// The session (0 the first, 1 after a restart).
+    pub session: u64,
+    /// Scans it read.
+    pub frames: usize,
+    /// Keyframes it made.
+    pub keyframes: u64,
+    /// Keyframes of it in the global map.
+    pub in_map: u64,
+    /// Its map is placed in the global map.
+    pub merged: bool,
+    /// Its odometry frame's placement against the truth, metres and degrees, when merged.
+    pub placement_error: Option<(f64, f64)>,
+    /// The placement error a perfect rigid merge would leave (see [`RobotResult::placement_floor`]).
+    pub placement_floor: Option<(f64, f64)>,
 }
 
 /// Where a merged robot's odometry frame lies in the global frame.
@@ -175,32 +241,40 @@ pub struct DemoReport {
     pub wall_s: f64,
     /// Wall time of each merge, milliseconds.
     pub merge_ms: Vec<f64>,
+    /// Keyframes the station dropped as conflicts (another keyframe of the same robot session
+    /// and sequence number had come first): 0 unless something is wrong.
+    pub conflicts: u64,
     /// Files written.
     pub written: Vec<PathBuf>,
 }
 
+/// One run of an edge: a robot and its session.
+type RobotSession = (u32, u64);
+
 /// Runs the demo until the global map holds every keyframe or `interrupt` resolves.
 pub async fn run(config: DemoConfig, interrupt: impl Future<Output = ()>) -> Result<DemoReport, DemoError> {
     let started = Instant::now();
+    check_restart(&config)?;
     let port = bus::free_port().map_err(|e| DemoError::Network(e.to_string()))?;
     let station_session = open(&bus::Network::loopback_ports(&[port], &[])).await?;
     let station = Station::start(station_session, config.station.clone()).await?;
     info!("station listening on {}", bus::endpoint(port));
     let (done_tx, mut done_rx) = mpsc::unbounded_channel();
-    let mut edges = Vec::new();
+    let mut edges = BTreeMap::new();
     for &robot in &config.robots {
-        edges.push(start_edge(&config, robot, port, done_tx.clone()).await?);
+        let plan = EdgePlan::first(&config, robot);
+        edges.insert((robot, plan.session), start_edge(&config, &plan, port, done_tx.clone()).await?);
     }
+    let mut summaries = BTreeMap::new();
     let mut interrupt = std::pin::pin!(interrupt);
     let complete = tokio::select! {
-        keyframes = wait_sources(&mut done_rx, config.robots.len()) => wait_station(&station, &keyframes).await,
+        sent = follow_sources(&config, port, &mut edges, &mut summaries, &mut done_rx, &done_tx) => {
+            wait_station(&station, &sent?).await
+        }
         () = &mut interrupt => false,
     };
-    let mut summaries = BTreeMap::new();
-    for edge in edges {
-        let _ = edge.stop.send(());
-        let summary = edge.task.await.map_err(|e| DemoError::Network(e.to_string()))?;
-        summaries.insert(edge.robot, summary.map_err(|source| DemoError::Edge { robot: edge.robot, source })?);
+    for (key, edge) in std::mem::take(&mut edges) {
+        summaries.insert(key, stop_edge(edge).await?);
     }
     let station = station.stop().await?;
     let global_map = match (complete, station.global_map) {
@@ -209,15 +283,81 @@ pub async fn run(config: DemoConfig, interrupt: impl Future<Output = ()>) -> Res
     };
     let joint = joint_poses(&station.fleet, &global_map);
     let robots = judge(&summaries, &global_map, &joint);
-    let timing = Timing { wall_s: started.elapsed().as_secs_f64(), merge_ms: station.merge_ms };
-    let written = write_results(&config, &summaries, &global_map, &robots, &timing)?;
-    Ok(DemoReport { robots, global_map, wall_s: timing.wall_s, merge_ms: timing.merge_ms, written })
+    let firsts: BTreeMap<u32, NodeSummary> =
+        summaries.into_iter().filter(|((_, session), _)| *session == 0).map(|((r, _), s)| (r, s)).collect();
+    let timing =
+        Timing { wall_s: started.elapsed().as_secs_f64(), merge_ms: station.merge_ms, conflicts: station.conflicts };
+    let written = write_results(&config, &firsts, &global_map, &robots, &timing)?;
+    let conflicts = timing.conflicts;
+    Ok(DemoReport { robots, global_map, wall_s: timing.wall_s, merge_ms: timing.merge_ms, conflicts, written })
+}
+
+/// Refuses a restart of a robot that is not run, or one whose second session would read no scan.
+fn check_restart(config: &DemoConfig) -> Result<(), DemoError> {
+    let Some(Restart { robot, scan }) = config.restart else { return Ok(()) };
+    let refuse = |reason: String| Err(DemoError::Restart { robot, scan, reason });
+    if !config.robots.contains(&robot) {
+        return refuse(format!("robot {robot} is not among those run ({:?})", config.robots));
+    }
+    let available = sim::Scenario::by_name(&config.scenario)
+        .ok()
+        .and_then(|s| sim::Simulator::new(s, robot as usize - 1, SimConfig::default()).ok())
+        .map(|s| s.frames());
+    let frames = match (config.frames, available) {
+        (Some(f), Some(a)) => f.min(a),
+        (Some(f), None) => f,
+        (None, Some(a)) => a,
+        // An unknown scenario: the edge says so when it opens its source.
+        (None, None) => return Ok(()),
+    };
+    if scan + RESTART_GAP >= frames {
+        return refuse(format!(
+            "the second session would start at scan {}, past the run's {frames} scans",
+            scan + RESTART_GAP
+        ));
+    }
+    Ok(())
+}
+
+/// Waits until every edge's source has ended, restarting the robot [`DemoConfig::restart`] names
+/// when its first session ends; returns what each session had sent.
+async fn follow_sources(
+    config: &DemoConfig,
+    port: u16,
+    edges: &mut BTreeMap<RobotSession, EdgeTask>,
+    summaries: &mut BTreeMap<RobotSession, NodeSummary>,
+    done: &mut mpsc::UnboundedReceiver<(RobotSession, SourceDone)>,
+    done_tx: &mpsc::UnboundedSender<(RobotSession, SourceDone)>,
+) -> Result<BTreeMap<RobotSession, SourceDone>, DemoError> {
+    let runs = config.robots.len() + usize::from(config.restart.is_some());
+    let mut sent = BTreeMap::new();
+    while sent.len() < runs {
+        let Some(((robot, session), d)) = done.recv().await else { break };
+        info!(
+            "robot {robot} session {session}: all scans done, {} keyframes, pose graph revision {}",
+            d.keyframes, d.pose_revision
+        );
+        sent.insert((robot, session), d);
+        if let Some(restart) = config.restart.filter(|r| r.robot == robot && session == 0) {
+            let edge = edges.remove(&(robot, session)).expect("a running edge ended its source");
+            summaries.insert((robot, session), stop_edge(edge).await?);
+            let plan = EdgePlan::restarted(config, restart);
+            info!(
+                "robot {robot}: stopped after scan {}, session {} starts at scan {}",
+                restart.scan, plan.session, plan.start_at
+            );
+            edges.insert((robot, plan.session), start_edge(config, &plan, port, done_tx.clone()).await?);
+        }
+    }
+    Ok(sent)
 }
 
 /// Where the time went.
 struct Timing {
     wall_s: f64,
     merge_ms: Vec<f64>,
+    /// The station's conflicting keyframes.
+    conflicts: u64,
 }
 
 /// A running edge.
@@ -227,24 +367,78 @@ struct EdgeTask {
     task: tokio::task::JoinHandle<Result<NodeSummary, node::NodeError>>,
 }
 
+/// Stops an edge and returns what it did.
+async fn stop_edge(edge: EdgeTask) -> Result<NodeSummary, DemoError> {
+    let _ = edge.stop.send(());
+    let summary = edge.task.await.map_err(|e| DemoError::Network(e.to_string()))?;
+    summary.map_err(|source| DemoError::Edge { robot: edge.robot, source })
+}
+
 async fn open(network: &bus::Network) -> Result<zenoh::Session, DemoError> {
     network.open().await.map_err(|e| DemoError::Network(e.to_string()))
+}
+
+/// What one run of an edge reads, and as which session.
+struct EdgePlan {
+    robot: u32,
+    session: u64,
+    start_at: usize,
+    max_frames: Option<usize>,
+    /// Where a robot that restarts keeps its keyframes.
+    state: Option<PathBuf>,
+}
+
+impl EdgePlan {
+    /// A robot's first session: its run from the start, up to the restart if it has one.
+    fn first(config: &DemoConfig, robot: u32) -> Self {
+        let restart = config.restart.filter(|r| r.robot == robot);
+        EdgePlan {
+            robot,
+            session: 0,
+            start_at: 0,
+            max_frames: restart.map(|r| r.scan).or(config.frames),
+            state: restart.map(|_| state_dir(config, robot)),
+        }
+    }
+
+    /// The session after a restart: [`RESTART_GAP`] scans after the first stopped, to the run's end.
+    fn restarted(config: &DemoConfig, restart: Restart) -> Self {
+        let start_at = restart.scan + RESTART_GAP;
+        EdgePlan {
+            robot: restart.robot,
+            session: 1,
+            start_at,
+            max_frames: config.frames.map(|f| f.saturating_sub(start_at)),
+            state: Some(state_dir(config, restart.robot)),
+        }
+    }
+}
+
+/// A restarting robot's state directory, under the demo's output.
+fn state_dir(config: &DemoConfig, robot: u32) -> PathBuf {
+    config.out.join("state").join(format!("robot{robot}"))
 }
 
 /// Starts one robot's edge on its own session, connected to the station.
 async fn start_edge(
     config: &DemoConfig,
-    robot: u32,
+    plan: &EdgePlan,
     port: u16,
-    done: mpsc::UnboundedSender<(u32, SourceDone)>,
+    done: mpsc::UnboundedSender<(RobotSession, SourceDone)>,
 ) -> Result<EdgeTask, DemoError> {
-    let session = open(&bus::Network::loopback_ports(&[], &[port])).await?;
+    let (robot, session) = (plan.robot, plan.session);
+    let network = open(&bus::Network::loopback_ports(&[], &[port])).await?;
     let source = SourceSpec::Sim { scenario: config.scenario.clone(), robot };
+    let state = plan.state.as_deref().and_then(|dir| StateDir::open(dir, robot));
     let mut node_config = NodeConfig {
-        max_frames: config.frames,
+        session,
+        start_at: plan.start_at,
+        max_frames: plan.max_frames,
+        state: state.map(|s| Arc::new(std::sync::Mutex::new(s))),
         rate: config.rate,
         on_source_end: Some(SourceEnd(Arc::new(move |s: &NodeSummary| {
-            let _ = done.send((robot, SourceDone { keyframes: s.keyframes, pose_revision: s.posegraph_revision }));
+            let d = SourceDone { keyframes: s.keyframes, pose_revision: s.posegraph_revision };
+            let _ = done.send(((robot, session), d));
         }))),
         loops: config.loops,
         sim: SimConfig { seed: config.seed, ..SimConfig::default() },
@@ -253,11 +447,11 @@ async fn start_edge(
     node_config.odometry.method = config.method;
     let (stop, stopped) = oneshot::channel();
     let task = tokio::spawn(async move {
-        let summary = node::run(&session, node_config, async {
+        let summary = node::run(&network, node_config, async {
             let _ = stopped.await;
         })
         .await;
-        let _ = session.close().await;
+        let _ = network.close().await;
         summary
     });
     Ok(EdgeTask { robot, stop, task })
@@ -271,38 +465,19 @@ struct SourceDone {
     pose_revision: u64,
 }
 
-/// Waits until every robot's source has ended; returns what each had sent.
-async fn wait_sources(
-    done: &mut mpsc::UnboundedReceiver<(u32, SourceDone)>,
-    robots: usize,
-) -> BTreeMap<u32, SourceDone> {
-    let mut sent = BTreeMap::new();
-    while sent.len() < robots {
-        match done.recv().await {
-            Some((robot, d)) => {
-                info!(
-                    "robot {robot}: all scans done, {} keyframes, pose graph revision {}",
-                    d.keyframes, d.pose_revision
-                );
-                sent.insert(robot, d);
-            }
-            None => break,
-        }
-    }
-    sent
-}
-
-/// Waits until the station holds every keyframe and every robot's newest pose graph, and has
+/// Waits until the station holds every keyframe and every session's newest pose graph, and has
 /// published a map built from them all.
-async fn wait_station(station: &Station, sent: &BTreeMap<u32, SourceDone>) -> bool {
+async fn wait_station(station: &Station, sent: &BTreeMap<RobotSession, SourceDone>) -> bool {
     let mut progress = station.progress();
     loop {
         let ready = {
             let p = progress.borrow_and_update();
             p.up_to_date()
-                && sent.iter().all(|(r, d)| {
-                    p.keyframes.get(r).is_some_and(|&k| k as u64 == d.keyframes)
-                        && (d.pose_revision == 0 || p.pose_revisions.get(r).is_some_and(|&v| v >= d.pose_revision))
+                && sent.iter().all(|(&(robot, session), d)| {
+                    let member = Member::new(robot, session);
+                    p.sessions.get(&member).is_some_and(|&k| k as u64 == d.keyframes)
+                        && (d.pose_revision == 0
+                            || p.session_pose_revisions.get(&member).is_some_and(|&v| v >= d.pose_revision))
                 })
         };
         if ready {
@@ -314,22 +489,34 @@ async fn wait_station(station: &Station, sent: &BTreeMap<u32, SourceDone>) -> bo
     }
 }
 
-/// Scores each robot against the simulator's truth.
-fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap, joint: &JointPoses) -> Vec<RobotResult> {
-    let reference_start = summaries.get(&map.reference_robot).and_then(|s| s.ground_truth.first().copied().flatten());
-    let reference_fit = summaries.get(&map.reference_robot).and_then(map_fit);
+/// Scores each robot (its first session) and each of its sessions against the simulator's truth.
+fn judge(summaries: &BTreeMap<RobotSession, NodeSummary>, map: &GlobalMap, joint: &JointPoses) -> Vec<RobotResult> {
+    let reference = summaries.get(&(map.reference_robot, map.reference_session));
+    let reference_start = reference.and_then(|s| s.ground_truth.first().copied().flatten());
+    let reference_fit = reference.and_then(map_fit);
+    // Where a session's odometry frame is, as placed and as the truth has it, when merged.
+    let frame_of = |(robot, session): RobotSession, s: &NodeSummary| {
+        let placement = map.robots.iter().find(|p| p.robot == robot && p.session == session);
+        let merged = placement.is_some_and(|p| p.status() == MergeStatus::Merged);
+        let placed = placement.and_then(|p| p.transform.as_ref()).and_then(|t| Isometry3::try_from(t).ok());
+        let frame = match (merged, placed, reference_start, s.ground_truth.first()) {
+            (true, Some(placed), Some(g_ref), Some(Some(g0))) => {
+                Some(GlobalFrame { placed, truth: g_ref.inverse() * g0 })
+            }
+            _ => None,
+        };
+        (placement, merged, frame)
+    };
+    let floor = |frame: Option<GlobalFrame>, s: &NodeSummary| {
+        frame.zip(reference_fit).zip(map_fit(s)).map(|((f, reference), own)| {
+            metres_and_degrees(&(rigid_floor(&f.truth, &reference, &own).inverse() * f.truth))
+        })
+    };
     summaries
         .iter()
-        .map(|(&robot, s)| {
-            let placement = map.robots.iter().find(|p| p.robot == robot);
-            let merged = placement.is_some_and(|p| p.status() == MergeStatus::Merged);
-            let placed = placement.and_then(|p| p.transform.as_ref()).and_then(|t| Isometry3::try_from(t).ok());
-            let frame = match (merged, placed, reference_start, s.ground_truth.first()) {
-                (true, Some(placed), Some(g_ref), Some(Some(g0))) => {
-                    Some(GlobalFrame { placed, truth: g_ref.inverse() * g0 })
-                }
-                _ => None,
-            };
+        .filter(|((_, session), _)| *session == 0)
+        .map(|(&(robot, session), s)| {
+            let (placement, merged, frame) = frame_of((robot, session), s);
             let truth = truth_in_own_frame(s);
             let odometry_ate = (ate(&truth, &s.poses, true), ate(&truth, &s.poses, false));
             let corrected = s.corrected_poses();
@@ -337,14 +524,27 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap, joint: &JointP
             // The station places the keyframes at their optimised poses: the trajectory it places
             // is the corrected one.
             let global_ate = frame.map(|f| ate(&moved(&truth, &f.truth), &moved(&corrected, &f.placed), false));
-            let joint_ate = frame.zip(joint.get(&robot)).and_then(|(f, keyframes)| {
+            let joint_ate = frame.zip(joint.get(&(robot, session))).and_then(|(f, keyframes)| {
                 let placed = joint_trajectory(s, &corrected, keyframes)?;
                 Some(ate(&moved(&truth, &f.truth), &placed, false))
             });
             let placement_error = frame.map(|f| metres_and_degrees(&(f.placed.inverse() * f.truth)));
-            let placement_floor = frame.zip(reference_fit).zip(map_fit(s)).map(|((f, reference), own)| {
-                metres_and_degrees(&(rigid_floor(&f.truth, &reference, &own).inverse() * f.truth))
-            });
+            let placement_floor = floor(frame, s);
+            let sessions = summaries
+                .range((robot, 0)..=(robot, u64::MAX))
+                .map(|(&key, s)| {
+                    let (placement, merged, frame) = frame_of(key, s);
+                    SessionResult {
+                        session: key.1,
+                        frames: s.frames,
+                        keyframes: s.keyframes,
+                        in_map: placement.map_or(0, |p| p.keyframes),
+                        merged,
+                        placement_error: frame.map(|f| metres_and_degrees(&(f.placed.inverse() * f.truth))),
+                        placement_floor: floor(frame, s),
+                    }
+                })
+                .collect();
             RobotResult {
                 robot,
                 frames: s.frames,
@@ -360,14 +560,15 @@ fn judge(summaries: &BTreeMap<u32, NodeSummary>, map: &GlobalMap, joint: &JointP
                 confidence: placement.map_or(0.0, |p| p.confidence),
                 merged,
                 odometry_ms: s.odometry_ms.clone(),
+                sessions,
             }
         })
         .collect()
 }
 
-/// Per joined robot, per keyframe (by sequence number): the pose the station held it at (its
-/// robot's frame) and its jointly optimised pose (global frame).
-type JointPoses = BTreeMap<u32, BTreeMap<u64, (Isometry3<f64>, Isometry3<f64>)>>;
+/// Per joined robot session, per keyframe (by sequence number): the pose the station held it at
+/// (its session's frame) and its jointly optimised pose (global frame).
+type JointPoses = BTreeMap<RobotSession, BTreeMap<u64, (Isometry3<f64>, Isometry3<f64>)>>;
 
 /// Runs the station's joint pose graph on what it held at the end (empty when it cannot run).
 fn joint_poses(fleet: &[RobotSnapshot], map: &GlobalMap) -> JointPoses {
@@ -389,9 +590,11 @@ fn joint_poses(fleet: &[RobotSnapshot], map: &GlobalMap) -> JointPoses {
         started.elapsed().as_secs_f64()
     );
     let mut out = JointPoses::new();
-    for (r, &robot) in input.robots.iter().enumerate().filter(|(r, _)| solution.joined[*r]) {
+    for (r, (&robot, &session)) in
+        input.robots.iter().zip(&input.sessions).enumerate().filter(|(r, _)| solution.joined[*r])
+    {
         let held = input.seqs[r].iter().zip(&input.paths[r].poses).zip(&solution.poses[r]);
-        out.insert(robot, held.map(|((&seq, held), joint)| (seq, (*held, *joint))).collect());
+        out.insert((robot, session), held.map(|((&seq, held), joint)| (seq, (*held, *joint))).collect());
     }
     out
 }
@@ -489,6 +692,7 @@ fn write_results(
 
 fn summary_json(config: &DemoConfig, map: &GlobalMap, robots: &[RobotResult], timing: &Timing) -> Value {
     let ate_json = |a: &Ate| json!({"rmse_m": a.rmse, "mean_m": a.mean, "max_m": a.max});
+    let error_json = |e: Option<(f64, f64)>| e.map(|(m, d)| json!({"m": m, "deg": d}));
     let robots: Vec<Value> = robots
         .iter()
         .map(|r| {
@@ -498,13 +702,22 @@ fn summary_json(config: &DemoConfig, map: &GlobalMap, robots: &[RobotResult], ti
                 "keyframes": r.keyframes,
                 "merged": r.merged,
                 "confidence": r.confidence,
-                "placement_error": r.placement_error.map(|(m, d)| json!({"m": m, "deg": d})),
-                "placement_floor": r.placement_floor.map(|(m, d)| json!({"m": m, "deg": d})),
+                "placement_error": error_json(r.placement_error),
+                "placement_floor": error_json(r.placement_floor),
                 "loops": r.loops,
                 "odometry_ate": {"aligned": ate_json(&r.odometry_ate.0), "unaligned": ate_json(&r.odometry_ate.1)},
                 "loop_closed_ate": {"aligned": ate_json(&r.corrected_ate.0), "unaligned": ate_json(&r.corrected_ate.1)},
                 "global_ate_unaligned": r.global_ate.as_ref().map(ate_json),
                 "joint_ate_unaligned": r.joint_ate.as_ref().map(ate_json),
+                "sessions": r.sessions.iter().map(|s| json!({
+                    "session": s.session,
+                    "scans": s.frames,
+                    "keyframes": s.keyframes,
+                    "keyframes_in_map": s.in_map,
+                    "merged": s.merged,
+                    "placement_error": error_json(s.placement_error),
+                    "placement_floor": error_json(s.placement_floor),
+                })).collect::<Vec<_>>(),
             })
         })
         .collect();
@@ -514,8 +727,10 @@ fn summary_json(config: &DemoConfig, map: &GlobalMap, robots: &[RobotResult], ti
         "fleet": config.station.fleet.as_str(),
         "revision": map.revision,
         "reference_robot": map.reference_robot,
+        "reference_session": map.reference_session,
         "global_map_points": map.cloud.as_ref().map_or(0, |c| c.points),
         "robots": robots,
+        "station": {"conflicts": timing.conflicts},
         "timing": {"wall_s": timing.wall_s, "merges": timing.merge_ms.len(), "merge_ms": timing.merge_ms},
     })
 }

@@ -51,6 +51,11 @@ struct RunArgs {
     /// sample of the noise, so judge a change over several.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Stop ROBOT's edge after SCAN scans and start a new session of it 50 scans later, in an
+    /// odometry frame of its own (a robot that reboots mid-mission): the station places both
+    /// sessions, and summary.json gives each one's placement error.
+    #[arg(long, value_name = "ROBOT@SCAN")]
+    restart: Option<demo::Restart>,
     /// Output directory.
     #[arg(long, default_value = "out/demo")]
     out: PathBuf,
@@ -71,13 +76,14 @@ fn main() -> Result<()> {
 }
 
 fn run_demo(args: RunArgs) -> Result<()> {
-    let RunArgs { scenario, robots, frames, realtime, seed, out, live } = args;
+    let RunArgs { scenario, robots, frames, realtime, seed, restart, out, live } = args;
     let mut config = DemoConfig {
         scenario,
         robots,
         frames,
         rate: if realtime { Rate::Realtime } else { Rate::Max },
         seed,
+        restart,
         out,
         ..DemoConfig::new()
     };
@@ -133,6 +139,21 @@ fn print_demo(report: &DemoReport) {
             r.corrected_ate.0.rmse * 100.0,
             r.corrected_ate.1.rmse * 100.0,
         );
+    }
+    for r in report.robots.iter().filter(|r| r.sessions.len() > 1) {
+        for s in &r.sessions {
+            let placement = s.placement_error.map_or("-".into(), |(m, d)| format!("{:.1} cm {:.2} deg", m * 100.0, d));
+            let floor = s.placement_floor.map_or("-".into(), |(m, d)| format!("{:.1} cm {:.2} deg", m * 100.0, d));
+            println!(
+                "robot {} session {}: {} scans, {} keyframes ({} in the map), {}, placement error {placement} (rigid floor {floor})",
+                r.robot,
+                s.session,
+                s.frames,
+                s.keyframes,
+                s.in_map,
+                if s.merged { "merged" } else { "unmerged" }
+            );
+        }
     }
     for path in &report.written {
         println!("wrote {}", path.display());

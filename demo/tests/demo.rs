@@ -39,3 +39,30 @@ async fn the_demo_writes_maps_trajectories_and_scores() {
         serde_json::from_str(&std::fs::read_to_string(out.path().join("placements.json")).unwrap()).unwrap();
     assert_eq!(placements["robots"].as_array().unwrap().len(), 2);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_robot_that_restarts_is_placed_in_both_sessions() {
+    // Robot 1 stops after 200 scans and starts again 50 scans on, in a new odometry frame: the
+    // station keeps both sessions, drops nothing and places each where the simulator says.
+    let out = tempfile::tempdir().unwrap();
+    let (frames, restart) = (500, demo::Restart { robot: 1, scan: 200 });
+    let config =
+        DemoConfig { frames: Some(frames), restart: Some(restart), out: out.path().to_owned(), ..DemoConfig::new() };
+    let report = demo::run(config, std::future::pending()).await.expect("demo runs");
+    assert_eq!(report.conflicts, 0, "keyframes dropped as conflicts");
+    let robot = report.robots.iter().find(|r| r.robot == 1).expect("robot 1");
+    let sessions: Vec<(u64, usize)> = robot.sessions.iter().map(|s| (s.session, s.frames)).collect();
+    assert_eq!(sessions, vec![(0, 200), (1, frames - 200 - demo::RESTART_GAP)]);
+    for s in &robot.sessions {
+        assert!(s.keyframes > 10, "session {}: {} keyframes", s.session, s.keyframes);
+        assert_eq!(s.in_map, s.keyframes, "session {}: not every keyframe in the map", s.session);
+        let (m, deg) = s.placement_error.unwrap_or_else(|| panic!("session {} not merged", s.session));
+        println!("robot 1 session {}: placed {:.1} cm / {deg:.3} deg from the truth", s.session, m * 100.0);
+        assert!(m < 0.05 && deg < 0.2, "session {}: {:.1} cm / {deg:.3} deg off", s.session, m * 100.0);
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("summary.json")).unwrap()).unwrap();
+    let robot1 = summary["robots"].as_array().unwrap().iter().find(|r| r["robot"] == 1).unwrap();
+    assert_eq!(robot1["sessions"].as_array().unwrap().len(), 2);
+    assert_eq!(summary["station"]["conflicts"], 0);
+}

@@ -257,7 +257,14 @@ impl Source {
     /// as they come. `len` and the limit count from there.
     pub fn starting_at(mut self, scans: usize) -> Self {
         match &mut self.inner {
-            Inner::Sim { next, .. } => *next = scans,
+            Inner::Sim { sim, next } => {
+                *next = scans;
+                // Counted from there, and no further than the simulated run goes.
+                let left = sim.frames().saturating_sub(scans);
+                self.limit = self.limit.map(|l| l.min(left));
+                self.len = self.len.map(|l| l.min(left));
+                return self;
+            }
             Inner::Recording(rec) => rec.by_ref().take(scans).for_each(drop),
             Inner::Live { sensor, next } => {
                 for _ in 0..scans {
@@ -402,5 +409,19 @@ mod tests {
         let recording = Source::open(&SourceSpec::Recording(kitti), None, &SimConfig::default(), &Default::default());
         let first = recording.unwrap().starting_at(14).map(Result::unwrap).next().unwrap();
         assert_eq!(first.index, 14);
+    }
+
+    #[test]
+    fn a_simulated_run_started_later_ends_where_the_run_ends() {
+        let spec: SourceSpec = "sim:aisles:1".parse().unwrap();
+        let sim = Simulator::new(Scenario::by_name("aisles").unwrap(), 0, SimConfig::default()).unwrap();
+        let frames = sim.frames();
+        let open = |limit| Source::open(&spec, limit, &SimConfig::default(), &RecordingOptions::default()).unwrap();
+        let late = open(None).starting_at(frames - 2);
+        assert_eq!(late.len, Some(2));
+        assert_eq!(late.map(|s| s.unwrap().index).collect::<Vec<_>>(), [frames - 2, frames - 1]);
+        // A limit counts from the start, and still stops at the run's end.
+        assert_eq!(open(Some(5)).starting_at(frames - 3).count(), 3);
+        assert_eq!(open(Some(2)).starting_at(3).count(), 2);
     }
 }

@@ -72,6 +72,8 @@ pub fn keyframe_message(
         odom_pose: Some(Pose::from(&kf.pose)),
         scan_context: context.map(proto::ScanContext::from),
         cloud: Some(CompressedCloud { data: data.into(), points: kf.cloud.len() as u64 }),
+        // The node names its session; a message made elsewhere is of no session.
+        session: 0,
     })
 }
 
@@ -93,7 +95,14 @@ pub fn posegraph_message(fleet: &Fleet, robot: u32, loops: &LoopCloser) -> proto
             score: l.fit.score,
         })
         .collect();
-    proto::PoseGraphUpdate { fleet: fleet.to_string(), robot, revision: loops.revision(), poses, loops: loops_in_graph }
+    proto::PoseGraphUpdate {
+        fleet: fleet.to_string(),
+        robot,
+        revision: loops.revision(),
+        poses,
+        loops: loops_in_graph,
+        session: 0,
+    }
 }
 
 /// The odometry pose and the decoded cloud of a wire keyframe.

@@ -88,3 +88,48 @@ fn an_unknown_topic_lists_the_topics_present() {
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(err.contains("/nope") && err.contains("/velodyne_points (sensor_msgs/PointCloud2)"), "{err}");
 }
+
+/// `--start-at N` leaves out the first N scans: what it writes is what a run from the start writes
+/// from scan N on, and the poses start again at the identity (a robot that starts there).
+#[test]
+fn start_at_skips_the_first_scans_of_a_recording_and_of_the_simulator() {
+    let dir = tempfile::tempdir().unwrap();
+    let convert = |input: &str, name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let mut args = vec!["convert", input, "--out", out.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let run = emr_edge(&args);
+        assert!(run.status.success(), "{input} {extra:?}: {}", String::from_utf8_lossy(&run.stderr));
+        out
+    };
+    let scan = |dir: &Path, i: usize| std::fs::read(dir.join("velodyne").join(format!("{i:06}.bin"))).unwrap();
+    let kitti = kitti00();
+    let later = convert(kitti.to_str().unwrap(), "kitti_later", &["--start-at", "2", "--frames", "2"]);
+    assert_eq!(scan(&later, 0), std::fs::read(kitti.join("velodyne/000002.bin")).unwrap());
+    assert_eq!(scan(&later, 1), std::fs::read(kitti.join("velodyne/000003.bin")).unwrap());
+    assert!(!later.join("velodyne/000002.bin").exists());
+    let all = convert("sim:warehouse-small:1", "sim_all", &["--frames", "6"]);
+    let later = convert("sim:warehouse-small:1", "sim_later", &["--start-at", "4", "--frames", "2"]);
+    for i in 0..2 {
+        assert_eq!(scan(&later, i), scan(&all, 4 + i), "sweep {} of the simulator", 4 + i);
+    }
+    // The simulator's truth, re-based on the first sweep written: T_4^-1 T_5 from the full run.
+    let poses = |dir: &Path| -> Vec<nalgebra::Isometry3<f64>> {
+        std::fs::read_to_string(dir.join("poses.txt"))
+            .unwrap()
+            .lines()
+            .map(|l| {
+                let row: Vec<f64> = l.split_whitespace().map(|v| v.parse().unwrap()).collect();
+                cloud::se3::from_kitti_row(&row.try_into().unwrap()).unwrap()
+            })
+            .collect()
+    };
+    let (all, later) = (poses(&all), poses(&later));
+    let expected = all[4].inverse() * all[5];
+    assert!((later[0].translation.vector.norm()) < 1e-6, "the first pose is the identity");
+    assert!((later[1].translation.vector - expected.translation.vector).norm() < 1e-6);
+    let beyond = emr_edge(&["convert", "sim:warehouse-small:1", "--start-at", "100000", "--out", "/nonexistent/x"]);
+    assert!(!beyond.status.success());
+    let said = String::from_utf8_lossy(&beyond.stderr);
+    assert!(said.contains("--start-at 100000") && said.contains("sim:warehouse-small:1"), "{said}");
+}

@@ -90,7 +90,7 @@ impl Running {
 
     /// The seqs and payloads a request gets back.
     async fn request(&self, seqs: &[u64], from_seq: Option<u64>) -> BTreeMap<u64, Vec<u8>> {
-        let request = KeyframeRequest { seqs: seqs.to_vec(), from_seq, limit: None };
+        let request = KeyframeRequest { seqs: seqs.to_vec(), from_seq, limit: None, session: None };
         let (ok, err) = self.ask(request.encode_to_vec()).await;
         assert!(err.is_empty(), "{err:?}");
         let decoded = ok.into_iter().map(|p| (proto::Keyframe::decode(p.as_slice()).unwrap().seq, p));
@@ -272,4 +272,44 @@ async fn a_closed_loop_publishes_the_pose_graph_and_a_late_asker_gets_the_newest
     let summary = running.shut_down().await;
     assert_eq!(summary.posegraph_revision, newest.revision);
     assert_eq!(summary.loops, newest.loops.len());
+}
+
+/// A robot that crashes and restarts with its state directory: the new start is a new session
+/// (its keyframes say so, numbered from 0 again) that starts where it is told (`start_at`, checked
+/// against the simulator's truth), and it serves the crashed session's keyframes from disk, the
+/// bytes it published.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn after_a_crash_the_restarted_robot_serves_its_earlier_session_from_disk() {
+    let state = tempfile::tempdir().unwrap();
+    let disk = || {
+        let dir = node::state_dir::StateDir::open(state.path(), 1).expect("a usable state directory");
+        Some(std::sync::Arc::new(std::sync::Mutex::new(dir)))
+    };
+    let first = start(NodeConfig { session: 5, state: disk(), ..config("fleet-s", Some(60)) }).await;
+    let mut published = BTreeMap::new();
+    first.collect_into(4, &mut published).await;
+    // The crash: the node is gone wherever it was, nothing shut down.
+    first.node.abort();
+    drop(first.client);
+    let dir = node::state_dir::StateDir::open(state.path(), 1).unwrap();
+    assert_eq!(dir.newest_session(), Some(5));
+    drop(dir);
+    let second = start(NodeConfig { session: 6, start_at: 40, state: disk(), ..config("fleet-s", Some(10)) }).await;
+    let newest = second.next(Duration::from_secs(60)).await.expect("the new session publishes");
+    let newest = proto::Keyframe::decode(newest.as_slice()).unwrap();
+    assert_eq!((newest.session, newest.seq), (6, 0));
+    let request = KeyframeRequest { from_seq: Some(0), session: Some(5), ..KeyframeRequest::default() };
+    let (replies, errors) = second.ask(request.encode_to_vec()).await;
+    assert!(errors.is_empty(), "{errors:?}");
+    let served: BTreeMap<u64, Vec<u8>> =
+        replies.into_iter().map(|p| (proto::Keyframe::decode(p.as_slice()).unwrap().seq, p)).collect();
+    for (seq, payload) in &published {
+        assert_eq!(served.get(seq), Some(payload), "keyframe {seq} of session 5 as published");
+    }
+    let summary = second.shut_down().await;
+    let truth = sim::Simulator::new(sim::Scenario::by_name("warehouse-small").unwrap(), 0, Default::default())
+        .unwrap()
+        .ground_truth(40);
+    let started = summary.ground_truth[0].expect("the simulator knows its truth");
+    assert!((started.translation.vector - truth.translation.vector).norm() < 1e-9, "started at scan 40");
 }

@@ -32,6 +32,7 @@ fn keyframe_round_trips() {
             cells: vec![0.0, 1.5, 2.0, 0.0, 3.25, 9.0],
         }),
         cloud: Some(cloud()),
+        session: 1_700_000_123,
     });
     // The descriptor is optional: absent must stay absent, not become an empty one.
     round_trip(&Keyframe { scan_context: None, ..Default::default() });
@@ -45,6 +46,7 @@ fn pose_graph_update_round_trips() {
         revision: 9,
         poses: (0..5).map(|s| KeyframePose { seq: s, pose: Some(pose(s as f64)) }).collect(),
         loops: vec![LoopEdge { from_seq: 4, to_seq: 0, relative: Some(pose(0.5)), score: 0.93 }],
+        session: 3,
     });
 }
 
@@ -61,6 +63,7 @@ fn global_map_round_trips() {
                 confidence: 12.5,
                 status: MergeStatus::Merged as i32,
                 keyframes: 40,
+                session: 0,
             },
             RobotPlacement {
                 robot: 2,
@@ -68,12 +71,22 @@ fn global_map_round_trips() {
                 confidence: 0.0,
                 status: MergeStatus::Unmerged as i32,
                 keyframes: 17,
+                session: 4,
             },
         ],
-        edges: vec![MergeEdge { robot_a: 1, robot_b: 2, transform: Some(pose(2.0)), confidence: 12.5, inliers: 311 }],
+        edges: vec![MergeEdge {
+            robot_a: 1,
+            robot_b: 2,
+            transform: Some(pose(2.0)),
+            confidence: 12.5,
+            inliers: 311,
+            session_a: 0,
+            session_b: 4,
+        }],
         cloud: Some(cloud()),
         stamp: Some(Timestamp::from_secs_f64(42.25)),
         settled: true,
+        reference_session: 0,
     });
 }
 
@@ -94,9 +107,26 @@ fn station_status_and_request_round_trip() {
         ],
         estimating: true,
         last_round_ms: 3014.5,
+        sessions: vec![SessionKeyframes { robot: 1, session: 2, keyframes: 40, conflicts: 0 }],
     });
-    round_trip(&KeyframeRequest { seqs: vec![0, 5, 6, 7, u64::MAX], from_seq: None, limit: None });
-    round_trip(&KeyframeRequest { seqs: vec![], from_seq: Some(42), limit: None });
+    round_trip(&KeyframeRequest { seqs: vec![0, 5, 6, 7, u64::MAX], from_seq: None, limit: None, session: None });
+    round_trip(&KeyframeRequest { seqs: vec![], from_seq: Some(42), limit: None, session: Some(0) });
+}
+
+/// A sender without sessions (these messages as they were before the field) is session 0, and a
+/// session survives a receiver that does not know the field (an older station keeps the bytes).
+#[test]
+fn an_absent_session_is_session_0() {
+    let old = Keyframe { fleet: "alpha".into(), robot: 2, seq: 7, ..Default::default() };
+    let bytes = old.encode_to_vec();
+    assert!(!bytes.windows(1).any(|b| b[0] == (8 << 3)), "session 0 must not be written at all");
+    assert_eq!(Keyframe::decode(bytes.as_slice()).unwrap().session, 0);
+    let update = PoseGraphUpdate { robot: 2, revision: 1, session: 9, ..Default::default() };
+    assert_eq!(PoseGraphUpdate::decode(update.encode_to_vec().as_slice()).unwrap().session, 9);
+    // The current session is asked for by leaving the field out; session 0 is asked for explicitly.
+    let request = KeyframeRequest { session: Some(0), ..Default::default() };
+    assert_eq!(KeyframeRequest::decode(request.encode_to_vec().as_slice()).unwrap().session, Some(0));
+    assert_eq!(KeyframeRequest::decode(&[][..]).unwrap().session, None);
 }
 
 #[test]

@@ -44,6 +44,18 @@ pub fn write_kitti(
     sim: &Simulator,
     dir: &Path,
     frames: usize,
+    progress: impl FnMut(usize),
+) -> Result<Written, ExportError> {
+    write_kitti_from(sim, dir, 0, frames, progress)
+}
+
+/// Writes sweeps `start..start + frames` of `sim` under `dir`, numbered from 0 with the poses and
+/// times re-based on sweep `start` (a robot that starts there); `progress` as [`write_kitti`]'s.
+pub fn write_kitti_from(
+    sim: &Simulator,
+    dir: &Path,
+    start: usize,
+    frames: usize,
     mut progress: impl FnMut(usize),
 ) -> Result<Written, ExportError> {
     let velodyne = dir.join("velodyne");
@@ -51,16 +63,16 @@ pub fn write_kitti(
     let mut poses = String::new();
     let mut times = String::new();
     let mut points = 0;
-    let first = sim.ground_truth(0).inverse();
-    let start = sim.stamp(0);
+    let first = sim.ground_truth(start).inverse();
+    let start_stamp = sim.stamp(start);
     for frame in 0..frames {
-        let scan = sim.scan(frame);
+        let scan = sim.scan(start + frame);
         write_cloud(&velodyne.join(format!("{frame:06}.bin")), &scan.cloud, FileFormat::KittiBin)?;
         points += scan.cloud.len();
         let row = cloud::se3::to_kitti_row(&(first * scan.ground_truth));
         let line: Vec<String> = row.iter().map(|v| format!("{v:.9}")).collect();
         let _ = writeln!(poses, "{}", line.join(" "));
-        let _ = writeln!(times, "{:.6}", scan.stamp - start);
+        let _ = writeln!(times, "{:.6}", scan.stamp - start_stamp);
         progress(frame + 1);
     }
     for (name, text) in [("poses.txt", poses), ("times.txt", times)] {

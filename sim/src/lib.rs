@@ -57,7 +57,7 @@ pub mod trajectory;
 pub mod world;
 pub mod worlds;
 
-pub use export::{ExportError, Written, write_kitti};
+pub use export::{ExportError, Written, write_kitti, write_kitti_from};
 pub use geometry::{Aabb, Cuboid, Cylinder, Hit, Object, Plane, Ray, Shape, Sphere, Triangle};
 pub use maps::{MapsError, RobotMaps};
 pub use scenario::{CATALOG, FRAME_RATE, Scenario, ScenarioInfo, UnknownScenario, scenario_names};

@@ -193,3 +193,41 @@ fn searches_that_can_place_a_map_where_places_look_alike_go_first() {
         rounds_to_all(&plain)
     );
 }
+
+#[test]
+fn a_robots_previous_session_is_searched_first() {
+    // Four maps, each campus robot's run in two pieces: pieces of one run are what a robot leaves
+    // before and after a restart. Robot 1's pieces get ids 0 and 3, robot 2's 1 and 2; one search
+    // per round. Told that 0 and 3 are sessions of one robot, the merger searches that pair
+    // first, and its link is the first placement; in id order the first search is (0, 1).
+    let fleet = robots("campus", 2, 1, 10);
+    let ids = [0, 3, 1, 2];
+    let frames: Vec<Isometry3<f64>> = {
+        let mut by_id = vec![Isometry3::identity(); fleet.len()];
+        for (robot, &id) in fleet.iter().zip(&ids) {
+            by_id[id] = robot.frame;
+        }
+        by_id
+    };
+    let first_round = |related: bool| {
+        let mut merger = Merger::new(MergeConfig { max_searches: 1, ..MergeConfig::outdoor() }).unwrap();
+        for (robot, &id) in fleet.iter().zip(&ids) {
+            merger.grow(id, 0, robot.maps[0].clone());
+        }
+        if related {
+            merger.relate(3, 0);
+        }
+        let report = merger.merge().unwrap();
+        let searched: Vec<(usize, usize)> =
+            report.pairs.iter().filter(|p| p.verdict.edge().is_some()).map(|p| (p.a, p.b)).collect();
+        let (t, r) = truth::worst_error(&report, &frames);
+        assert!(t < 0.05 && r < 0.5, "a placement {t:.3} m / {r:.2} deg off the truth");
+        let placed: Vec<usize> = report.maps.iter().filter(|m| m.is_merged()).map(|m| m.id).collect();
+        (searched, placed)
+    };
+    let (plain_links, plain_placed) = first_round(false);
+    let (links, placed) = first_round(true);
+    println!("first round in id order: links {plain_links:?}, placed {plain_placed:?}; related: {links:?}, {placed:?}");
+    assert_eq!(placed, vec![0, 3], "the related sessions placed first");
+    assert_ne!(plain_placed, placed, "the premise: in id order another pair is searched first");
+}

@@ -60,6 +60,7 @@ fn keyframe_msg(fleet: &str, robot: u32, seq: u64) -> Keyframe {
         odom_pose: Some(Pose::from(odom(seq))),
         scan_context: None,
         cloud: Some(CompressedCloud { data: data.into(), points: cloud.len() as u64 }),
+        session: 0,
     }
 }
 
@@ -236,6 +237,11 @@ fn malformed_keyframes_are_refused_with_their_key() {
     assert!(ingest::keyframe(&f, 1, &key, &wrong_fleet.encode_to_vec()).is_ok());
 }
 
+/// What the backfill asks robot 1's session 0 for: `seqs`, and everything from `from_seq` on.
+fn request(seqs: &[u64], from_seq: Option<u64>) -> KeyframeRequest {
+    KeyframeRequest { seqs: seqs.to_vec(), from_seq, limit: Some(MAX_KEYFRAMES_PER_REQUEST), session: Some(0) }
+}
+
 #[test]
 fn backfill_keeps_one_request_per_robot_and_does_not_repeat_itself() {
     let mut s = FleetState::default();
@@ -246,19 +252,13 @@ fn backfill_keeps_one_request_per_robot_and_does_not_repeat_itself() {
     let mut b = Backfill::new(Duration::from_secs(2));
     b.want(1, Want::Gaps);
     let sent = b.requests(&s, now);
-    assert_eq!(
-        sent,
-        vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: None, limit: Some(MAX_KEYFRAMES_PER_REQUEST) })]
-    );
+    assert_eq!(sent, vec![(1, request(&[1, 2], None))]);
     b.want(1, Want::Gaps);
     assert!(b.requests(&s, now).is_empty(), "one outstanding request per robot");
     b.done(1, Ended::Complete, now);
     assert!(b.requests(&s, now).is_empty(), "the same gaps again so soon");
     b.want(1, Want::Everything);
-    assert_eq!(
-        b.requests(&s, now),
-        vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: Some(4), limit: Some(MAX_KEYFRAMES_PER_REQUEST) })]
-    );
+    assert_eq!(b.requests(&s, now), vec![(1, request(&[1, 2], Some(4)))]);
 }
 
 #[test]
@@ -271,19 +271,13 @@ fn a_request_that_timed_out_is_made_again_for_what_is_still_missing() {
     let retry = Duration::from_secs(2);
     let mut b = Backfill::new(retry);
     b.want(1, Want::Everything);
-    assert_eq!(
-        b.requests(&s, t0),
-        vec![(1, KeyframeRequest { seqs: vec![1, 2], from_seq: Some(4), limit: Some(MAX_KEYFRAMES_PER_REQUEST) })]
-    );
+    assert_eq!(b.requests(&s, t0), vec![(1, request(&[1, 2], Some(4)))]);
     // Part of it came before the timeout.
     s.insert_keyframe(&received(1, 1));
     s.insert_keyframe(&received(1, 4));
     b.done(1, Ended::TimedOut, t0);
     assert!(b.requests(&s, t0 + retry / 2).is_empty(), "asked again before the retry delay");
-    assert_eq!(
-        b.requests(&s, t0 + retry),
-        vec![(1, KeyframeRequest { seqs: vec![2], from_seq: Some(5), limit: Some(MAX_KEYFRAMES_PER_REQUEST) })]
-    );
+    assert_eq!(b.requests(&s, t0 + retry), vec![(1, request(&[2], Some(5)))]);
     b.done(1, Ended::Complete, t0 + retry);
     assert!(b.requests(&s, t0 + retry * 10).is_empty(), "a completed request is not repeated");
 }
@@ -304,6 +298,7 @@ fn a_full_request_is_followed_by_the_next_piece_at_once() {
         seqs: vec![],
         from_seq: Some(u64::from(MAX_KEYFRAMES_PER_REQUEST) + 1),
         limit: Some(MAX_KEYFRAMES_PER_REQUEST),
+        session: Some(0),
     };
     assert_eq!(b.requests(&s, t0), vec![(1, next)]);
     b.done(1, Ended::Complete, t0);
@@ -329,7 +324,10 @@ fn gaps_that_nothing_new_reveals_are_asked_for_again() {
     let again = b.requests(&s, t0 + retry);
     assert_eq!(
         again,
-        vec![(1, KeyframeRequest { seqs: vec![1], from_seq: None, limit: Some(MAX_KEYFRAMES_PER_REQUEST) })],
+        vec![(
+            1,
+            KeyframeRequest { seqs: vec![1], from_seq: None, limit: Some(MAX_KEYFRAMES_PER_REQUEST), session: Some(0) }
+        )],
         "robot 2 has no gap"
     );
 }
@@ -351,7 +349,12 @@ async fn the_station_backfills_exactly_the_hole() {
     assert_eq!(p.missing, 0);
     assert_eq!(
         *requests.lock().unwrap(),
-        vec![KeyframeRequest { seqs: vec![3, 4], from_seq: None, limit: Some(MAX_KEYFRAMES_PER_REQUEST) }]
+        vec![KeyframeRequest {
+            seqs: vec![3, 4],
+            from_seq: None,
+            limit: Some(MAX_KEYFRAMES_PER_REQUEST),
+            session: Some(0)
+        }]
     );
     let (map, _) =
         client::fetch_global_map(&client_session(port).await, &fleet(), Duration::from_secs(5)).await.unwrap();
@@ -405,6 +408,7 @@ async fn malformed_payloads_are_counted_and_the_station_goes_on() {
         revision: 1,
         poses: vec![KeyframePose { seq: 0, pose: Some(Pose::from(Isometry3::new(Vector3::x(), Vector3::zeros()))) }],
         loops: vec![],
+        session: 0,
     };
     poses.put(update.encode_to_vec()).await.unwrap();
     let p = wait_for(&mut progress, "the good keyframe", |p| p.total_keyframes() == 1 && p.up_to_date()).await;
@@ -489,6 +493,7 @@ fn raised(robot: u32, seqs: std::ops::Range<u64>, moved: &[u64], revision: u64) 
         revision,
         poses: seqs.map(|seq| KeyframePose { seq, pose: Some(pose(seq)) }).collect(),
         loops: vec![],
+        session: 0,
     }
 }
 

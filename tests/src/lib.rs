@@ -173,6 +173,8 @@ pub fn edge_args(
 /// What `emr-edge run --summary` writes once its source is exhausted.
 #[derive(Clone, Debug, PartialEq)]
 pub struct EdgeSummary {
+    /// The session it was (0 from an edge without sessions).
+    pub session: u64,
     /// Scans read.
     pub frames: u64,
     /// Keyframes produced.
@@ -196,7 +198,11 @@ pub fn wait_summary(path: &Path, timeout: Duration, procs: &mut [&mut Process]) 
 
 fn read_summary(path: &Path) -> Option<EdgeSummary> {
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()?;
-    Some(EdgeSummary { frames: v["frames"].as_u64()?, keyframes: v["keyframes"].as_u64()? })
+    Some(EdgeSummary {
+        session: v["session"].as_u64().unwrap_or(0),
+        frames: v["frames"].as_u64()?,
+        keyframes: v["keyframes"].as_u64()?,
+    })
 }
 
 /// The logs of all processes, for a failure message.
@@ -235,6 +241,30 @@ impl Observer {
             let sample = tokio::time::timeout(timeout, sub.recv_async()).await.ok()?.ok()?;
             StationStatus::decode(sample.payload().to_bytes().as_ref()).ok()
         })
+    }
+
+    /// Reads the station's status until `done` holds for one; panics with the logs after `timeout`.
+    pub fn wait_status(
+        &self,
+        timeout: Duration,
+        procs: &mut [&mut Process],
+        done: impl Fn(&StationStatus) -> bool,
+    ) -> StationStatus {
+        let deadline = Instant::now() + timeout;
+        let mut last = None;
+        loop {
+            if let Some(status) = self.next_status(Duration::from_secs(5)) {
+                if done(&status) {
+                    return status;
+                }
+                last = Some(status.sessions);
+            }
+            assert!(
+                Instant::now() < deadline,
+                "no satisfying station status in {timeout:?}; last sessions seen: {last:?}\n{}",
+                tails(procs)
+            );
+        }
     }
 
     /// Polls the station until `done` holds for its global map; panics with the logs after `timeout`.
@@ -285,6 +315,15 @@ pub fn settled_with_all(map: &GlobalMap, keyframes: &[(u32, u64)]) -> bool {
     map.settled && holds_all(map, keyframes)
 }
 
+/// True when the map holds each robot session of `keyframes` (robot, session, count) with that
+/// many keyframes, and nothing else.
+pub fn holds_sessions(map: &GlobalMap, keyframes: &[(u32, u64, u64)]) -> bool {
+    map.robots.len() == keyframes.len()
+        && keyframes.iter().all(|(robot, session, n)| {
+            map.robots.iter().any(|r| r.robot == *robot && r.session == *session && r.keyframes == *n)
+        })
+}
+
 /// True when every robot of the map is merged.
 pub fn all_merged(map: &GlobalMap) -> bool {
     !map.robots.is_empty() && map.robots.iter().all(|r| r.status() == MergeStatus::Merged)
@@ -296,11 +335,32 @@ pub fn placement(map: &GlobalMap, robot: u32) -> Isometry3<f64> {
     Isometry3::try_from(r.transform.as_ref().expect("placement transform")).expect("valid transform")
 }
 
+/// One robot session's transform in the map.
+pub fn session_placement(map: &GlobalMap, robot: u32, session: u64) -> Isometry3<f64> {
+    let r = map
+        .robots
+        .iter()
+        .find(|r| r.robot == robot && r.session == session)
+        .unwrap_or_else(|| panic!("robot {robot} session {session} not in the map"));
+    Isometry3::try_from(r.transform.as_ref().expect("placement transform")).expect("valid transform")
+}
+
 /// The sensor's world pose at the end of simulated `robot`'s first sweep in `scenario`: the origin
 /// of that robot's odometry frame, which the simulator knows exactly.
 pub fn first_sweep_pose(scenario: &str, robot: u32) -> Isometry3<f64> {
+    sweep_pose(scenario, robot, 0)
+}
+
+/// The sensor's world pose at the end of simulated `robot`'s sweep `frame`: the origin of the
+/// odometry frame of a session that started there (`emr-edge run --start-at FRAME`).
+pub fn sweep_pose(scenario: &str, robot: u32, frame: usize) -> Isometry3<f64> {
     let scenario = Scenario::by_name(scenario).expect("scenario");
-    Simulator::new(scenario, robot as usize - 1, SimConfig::default()).expect("simulator").ground_truth(0)
+    Simulator::new(scenario, robot as usize - 1, SimConfig::default()).expect("simulator").ground_truth(frame)
+}
+
+/// The simulator's sweep period, seconds: scan `k` is stamped `k` periods.
+pub fn sweep_period() -> f64 {
+    SimConfig::default().sensor.period
 }
 
 /// The true placement of `robot`'s odometry frame in `reference`'s (both of `scenario`).

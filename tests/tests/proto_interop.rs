@@ -58,6 +58,7 @@ fn python_reads_a_global_map_written_by_rust() {
                 confidence: 0.0,
                 status: MergeStatus::Merged as i32,
                 keyframes: 10,
+                session: 0,
             },
             RobotPlacement {
                 robot: 2,
@@ -65,6 +66,7 @@ fn python_reads_a_global_map_written_by_rust() {
                 confidence: 0.875,
                 status: MergeStatus::Merged as i32,
                 keyframes: 12,
+                session: 0,
             },
         ],
         edges: vec![MergeEdge {
@@ -73,10 +75,13 @@ fn python_reads_a_global_map_written_by_rust() {
             transform: Some(Pose::from(&t)),
             confidence: 0.875,
             inliers: 250,
+            session_a: 0,
+            session_b: 0,
         }],
         cloud: Some(proto::CompressedCloud { data: vec![7u8; 300].into(), points: 99 }),
         stamp: Some(Timestamp { sec: 1_800_000_000, nanosec: 5 }),
         settled: true,
+        reference_session: 0,
     };
     std::fs::write(dir.join("map.bin"), map.encode_to_vec()).unwrap();
     let out = python(

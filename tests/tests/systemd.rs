@@ -53,6 +53,8 @@ fn emr_edge_accepts_the_units_command_line() {
         ("${EMR_ROBOT}", "3".to_owned()),
         ("${EMR_SOURCE}", dir.path().join("no-such-recording.bag").display().to_string()),
         ("$EMR_ARGS", "--preset indoor".to_owned()),
+        // systemd's, for StateDirectory=.
+        ("${STATE_DIRECTORY}", dir.path().join("state").display().to_string()),
     ];
     let line = vars.iter().fold(exec, |l, (k, v)| l.replace(k, v));
     let mut words = line.split_whitespace();

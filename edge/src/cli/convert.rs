@@ -19,22 +19,28 @@ pub struct ConvertArgs {
     /// Convert at most this many scans (required for a live udp: source).
     #[arg(long)]
     frames: Option<usize>,
+    /// Skip the source's first N scans (counted before --frames).
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    start_at: usize,
 }
 
 /// `emr-edge convert`.
 pub fn convert(args: ConvertArgs) -> Result<()> {
     let reading = args.source.reading();
     let summary = match &args.source.input {
-        SourceSpec::Sim { scenario, robot } => return super::sim::convert(scenario, *robot, args.frames, &args.out),
+        SourceSpec::Sim { scenario, robot } => {
+            return super::sim::convert(scenario, *robot, args.start_at, args.frames, &args.out);
+        }
         SourceSpec::Recording(path) => {
-            let scans = recording::open(path, &reading)?.take(args.frames.unwrap_or(usize::MAX));
+            let scans = recording::open(path, &reading)?.skip(args.start_at).take(args.frames.unwrap_or(usize::MAX));
             write(scans, &args)?
         }
         SourceSpec::Udp(address) => {
             if args.frames.is_none() {
                 bail!("udp:{address} streams without end: say how many scans to convert with --frames N");
             }
-            let source = Source::open(&args.source.input, args.frames, &args.source.sim.config(), &reading)?;
+            let source = Source::open(&args.source.input, args.frames, &args.source.sim.config(), &reading)?
+                .starting_at(args.start_at);
             // A live source yields no errors: a packet that does not decode is counted in its scan.
             let scans = source.filter_map(Result::ok).map(|s| {
                 Ok::<_, RecordingError>(Scan {

@@ -7,6 +7,7 @@ use anyhow::{Context, Result, bail};
 use bus::NetworkArgs;
 use clap::ValueEnum;
 use edge::args::PacketArgs;
+use edge::node::state_dir::StateDir;
 use edge::node::{self, NodeConfig, NodeSummary, Rate, SourceEnd};
 use edge::odometry::pipeline::{Tuning, recording_options};
 use edge::recording::RecordingOptions;
@@ -36,7 +37,11 @@ pub struct RunArgs {
     /// Pace: realtime plays scans at their stamps, max as fast as the odometry goes.
     #[arg(long, value_enum, default_value_t = RateArg::Realtime)]
     rate: RateArg,
-    /// Stop reading after this many scans.
+    /// Skip the source's first N scans (a restart reproduced from a recording or the simulator:
+    /// the robot starts there, in a new odometry frame).
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    start_at: usize,
+    /// Stop reading after this many scans (counted from --start-at).
     #[arg(long)]
     max_frames: Option<usize>,
     #[command(flatten)]
@@ -46,11 +51,16 @@ pub struct RunArgs {
     /// emr/FLEET/robot/ID/posegraph after each optimisation.
     #[arg(long)]
     no_loops: bool,
+    /// Keep every keyframe on disk here too (the systemd unit's StateDirectory), so that after a
+    /// crash or a reboot the station can still backfill what it missed; a damaged directory is set
+    /// aside with a warning. Each start is a new session, numbered above those kept here.
+    #[arg(long, value_name = "DIR")]
+    state: Option<PathBuf>,
     /// Exit when the source ends instead of answering backfill requests until a signal.
     #[arg(long)]
     exit_when_done: bool,
-    /// When the source ends, write {"robot", "frames", "keyframes", "published_bytes", "loops",
-    /// "posegraph_revision"} here (JSON):
+    /// When the source ends, write {"robot", "session", "frames", "keyframes", "published_bytes",
+    /// "loops", "posegraph_revision"} here (JSON):
     /// how scripts and the system tests learn that a robot is done while it keeps serving.
     #[arg(long, value_name = "FILE")]
     summary: Option<PathBuf>,
@@ -80,7 +90,19 @@ impl From<RateArg> for Rate {
 pub fn run(args: RunArgs) -> Result<()> {
     let robot = robot_id(args.robot, &args.source)?;
     let odometry = Tuning::from(&args.tuning).load()?;
+    let state = args.state.as_deref().and_then(|dir| StateDir::open(dir, robot));
+    let session = node::new_session(state.as_ref().and_then(StateDir::newest_session));
+    if let (Some(dir), Some(state)) = (&args.state, &state) {
+        tracing::info!(
+            "robot {robot}: session {session}; {} keyframes of earlier sessions in {}",
+            state.keyframes(),
+            dir.display()
+        );
+    }
     let config = NodeConfig {
+        session,
+        state: state.map(|s| Arc::new(std::sync::Mutex::new(s))),
+        start_at: args.start_at,
         max_frames: args.max_frames,
         rate: args.rate.into(),
         recording: recording_options(
@@ -90,7 +112,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         odometry,
         loops: !args.no_loops,
         linger: !args.exit_when_done,
-        on_source_end: args.summary.clone().map(|path| summary_writer(path, robot)),
+        on_source_end: args.summary.clone().map(|path| summary_writer(path, robot, session)),
         ..NodeConfig::new(args.fleet.clone(), robot, args.source.clone())
     };
     let network = args.network.joining(bus::DEFAULT_PORT);
@@ -125,10 +147,10 @@ pub fn run(args: RunArgs) -> Result<()> {
 }
 
 /// Writes the node's summary to `path` atomically (a reader never sees half a file).
-fn summary_writer(path: PathBuf, robot: u32) -> SourceEnd {
+fn summary_writer(path: PathBuf, robot: u32, session: u64) -> SourceEnd {
     SourceEnd(Arc::new(move |s: &NodeSummary| {
         let json = serde_json::json!({
-            "robot": robot, "frames": s.frames, "keyframes": s.keyframes, "published_bytes": s.published_bytes,
+            "robot": robot, "session": session, "frames": s.frames, "keyframes": s.keyframes, "published_bytes": s.published_bytes,
             "loops": s.loops, "posegraph_revision": s.posegraph_revision, "source_losses": s.source_losses,
         });
         let partial = path.with_extension("partial");

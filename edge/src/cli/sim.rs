@@ -114,7 +114,7 @@ pub fn simulate(args: SimArgs) -> Result<()> {
     };
     let simulator = Simulator::new(scenario, args.robot as usize - 1, config)?;
     if let Some(out) = &args.out {
-        write_simulation(&simulator, args.frames, out)?;
+        write_simulation(&simulator, 0, args.frames, out)?;
     }
     match packets {
         Some(output) => output.run(&simulator, args.frames),
@@ -209,17 +209,22 @@ impl PacketOutput {
     }
 }
 
-/// `emr-edge convert` of a `sim:SCENARIO:ROBOT` source: the robot's sweeps with the default sensor.
-pub fn convert(scenario: &str, robot: u32, frames: Option<usize>, out: &Path) -> Result<()> {
+/// `emr-edge convert` of a `sim:SCENARIO:ROBOT` source: the robot's sweeps with the default sensor,
+/// from sweep `start_at` on.
+pub fn convert(scenario: &str, robot: u32, start_at: usize, frames: Option<usize>, out: &Path) -> Result<()> {
     let simulator = Simulator::new(load_scenario(scenario)?, robot as usize - 1, SimConfig::default())?;
-    write_simulation(&simulator, frames, out)
+    let left = simulator.frames().saturating_sub(start_at);
+    if left == 0 {
+        bail!("--start-at {start_at}: sim:{scenario}:{robot} has only {} sweeps", simulator.frames());
+    }
+    write_simulation(&simulator, start_at, Some(frames.map_or(left, |f| f.min(left))), out)
 }
 
 /// Writes a simulated robot's sweeps in the KITTI layout, with a progress bar.
-fn write_simulation(simulator: &Simulator, frames: Option<usize>, out: &Path) -> Result<()> {
+fn write_simulation(simulator: &Simulator, start: usize, frames: Option<usize>, out: &Path) -> Result<()> {
     let frames = frames.unwrap_or(simulator.frames());
     let bar = progress_bar(Some(frames), "sweeps");
-    let written = sim::write_kitti(simulator, out, frames, |done| bar.set_position(done as u64))?;
+    let written = sim::write_kitti_from(simulator, out, start, frames, |done| bar.set_position(done as u64))?;
     bar.finish_and_clear();
     println!(
         "wrote {} sweeps ({:.0} points each on average) to {}",

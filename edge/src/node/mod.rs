@@ -11,6 +11,7 @@
 //! consolidation keeps a single reply.
 
 mod serve;
+pub mod state_dir;
 mod store;
 mod worker;
 
@@ -35,6 +36,7 @@ use crate::loops::{self, LoopCloser, LoopError};
 use crate::odometry::{Odometry, OdometryConfig, OdometryError};
 use crate::recording::RecordingOptions;
 use crate::source::{Source, SourceError, SourceLosses, SourceSpec};
+use state_dir::StateDir;
 use store::Store;
 use worker::{EncodedKeyframe, EncodedPoseGraph, Made, Registered, Worker};
 
@@ -66,9 +68,17 @@ pub struct NodeConfig {
     pub fleet: Fleet,
     /// Robot id within the fleet.
     pub robot: u32,
+    /// This start's session, carried by every keyframe and pose-graph update: a robot that
+    /// restarts begins a new odometry frame and numbers its keyframes from 0 again, and the
+    /// station keeps each session as a map of its own. Must be higher than every earlier session
+    /// of the robot ([`new_session`] gives one).
+    pub session: u64,
     /// Where scans come from.
     pub source: SourceSpec,
-    /// Stop after this many scans.
+    /// Leave out the source's first scans (a restart reproduced from a recording or the
+    /// simulator: the robot starts where it stopped, in a new odometry frame).
+    pub start_at: usize,
+    /// Stop after this many scans (counted from `start_at`).
     pub max_frames: Option<usize>,
     /// How fast the source is read.
     pub rate: Rate,
@@ -84,6 +94,9 @@ pub struct NodeConfig {
     pub codec: CodecConfig,
     /// Bytes of encoded keyframes kept for backfill; the oldest are evicted first.
     pub store_bytes: usize,
+    /// Where the keyframes are kept on disk too, every session's, for backfill after a crash
+    /// (`emr-edge run --state DIR`); `None`: in memory only.
+    pub state: Option<Arc<Mutex<StateDir>>>,
     /// After the source ends, keep serving backfill requests until shutdown.
     pub linger: bool,
     /// Called once when the source has ended and its keyframes are published (before lingering).
@@ -102,12 +115,14 @@ impl std::fmt::Debug for SourceEnd {
 }
 
 impl NodeConfig {
-    /// Defaults: realtime, indoor odometry, 1 mm codec, a 256 MiB store, lingering after the source.
+    /// Defaults: session 0, realtime, indoor odometry, 1 mm codec, a 256 MiB store, lingering after the source.
     pub fn new(fleet: Fleet, robot: u32, source: SourceSpec) -> Self {
         NodeConfig {
             fleet,
             robot,
+            session: 0,
             source,
+            start_at: 0,
             max_frames: None,
             rate: Rate::Realtime,
             odometry: OdometryConfig::indoor(),
@@ -116,10 +131,19 @@ impl NodeConfig {
             recording: RecordingOptions::default(),
             codec: CodecConfig::default(),
             store_bytes: DEFAULT_STORE_BYTES,
+            state: None,
             linger: true,
             on_source_end: None,
         }
     }
+}
+
+/// A session id for a start now: the wall clock in seconds, so that each start of a robot gets a
+/// higher one than the last without anything kept between starts; above `after` (the newest session
+/// the robot is known to have had) whatever the clock says.
+pub fn new_session(after: Option<u64>) -> u64 {
+    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    after.map_or(now, |a| now.max(a.saturating_add(1)))
 }
 
 /// What a node did.
@@ -267,6 +291,7 @@ pub async fn run(
         odometry: Odometry::new(config.odometry.clone()).map_err(NodeError::OdometryConfig)?,
         fleet: config.fleet.clone(),
         robot: config.robot,
+        session: config.session,
         codec: config.codec.clone(),
         rate: config.rate,
         loops: config.loops.then(|| LoopCloser::new(config.odometry.loops.clone())),
@@ -290,9 +315,12 @@ pub async fn run(
 async fn open_source(config: &NodeConfig) -> Result<Source, NodeError> {
     let (spec, frames, sim, recording) =
         (config.source.clone(), config.max_frames, config.sim.clone(), config.recording.clone());
-    let opened = tokio::task::spawn_blocking(move || Source::open(&spec, frames, &sim, &recording))
-        .await
-        .map_err(|e| NodeError::Worker(e.to_string()))?;
+    let start_at = config.start_at;
+    let opened = tokio::task::spawn_blocking(move || {
+        Source::open(&spec, frames, &sim, &recording).map(|source| source.starting_at(start_at))
+    })
+    .await
+    .map_err(|e| NodeError::Worker(e.to_string()))?;
     opened.map_err(|e| NodeError::Source { input: config.source.to_string(), source: Box::new(e) })
 }
 
@@ -375,7 +403,8 @@ impl<'a> Links<'a> {
             .map_err(zenoh_error("declare", &key))?;
         let key = keyexpr::keyframe_store(fleet, robot);
         let queryable = session.declare_queryable(key.clone()).await.map_err(zenoh_error("declare", &key))?;
-        let store = Arc::new(Mutex::new(Store::new(config.store_bytes)));
+        let store =
+            Arc::new(Mutex::new(Store::new(config.session, config.store_bytes).with_disk(config.state.clone())));
         let (stop_serving, stop) = oneshot::channel();
         let serving = tokio::spawn(serve::serve(queryable, store.clone(), stop));
         let key = keyexpr::posegraph(fleet, robot);

@@ -84,6 +84,8 @@ pub(crate) struct Worker {
     pub fleet: Fleet,
     /// Robot id named in the messages.
     pub robot: u32,
+    /// The session named in the messages (see [`super::NodeConfig::session`]).
+    pub session: u64,
     /// How keyframe clouds are compressed.
     pub codec: CodecConfig,
     /// How fast scans are read.
@@ -157,7 +159,10 @@ impl Worker {
             drop(made);
             keyframe = Some(encoded);
             if optimised && let Some(loops) = &self.loops {
-                let msg = wire::posegraph_message(&self.fleet, self.robot, loops);
+                let msg = proto::PoseGraphUpdate {
+                    session: self.session,
+                    ..wire::posegraph_message(&self.fleet, self.robot, loops)
+                };
                 posegraph = Some(EncodedPoseGraph {
                     revision: msg.revision,
                     poses: loops.poses().to_vec(),
@@ -178,8 +183,9 @@ impl Worker {
     }
 
     fn encode(&self, kf: &Keyframe, stamp: f64, context: &ScanContext) -> Result<EncodedKeyframe, NodeError> {
-        let msg = wire::keyframe_message(&self.fleet, self.robot, kf, stamp, Some(context), &self.codec)
+        let mut msg = wire::keyframe_message(&self.fleet, self.robot, kf, stamp, Some(context), &self.codec)
             .map_err(|source| NodeError::Encode { seq: kf.seq, source })?;
+        msg.session = self.session;
         Ok(EncodedKeyframe { seq: kf.seq, payload: msg.encode_to_vec() })
     }
 }

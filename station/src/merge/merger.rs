@@ -91,6 +91,8 @@ pub struct Merger {
     /// A round is out ([`Merger::plan`]) and not yet applied.
     out: bool,
     last: LastRound,
+    /// Pairs of map ids (lower first) that are sessions of one robot ([`Merger::relate`]).
+    kin: FxHashSet<(usize, usize)>,
 }
 
 impl Merger {
@@ -109,6 +111,7 @@ impl Merger {
             changes: 0,
             out: false,
             last: LastRound::default(),
+            kin: FxHashSet::default(),
             config,
         })
     }
@@ -215,6 +218,15 @@ impl Merger {
         }
     }
 
+    /// Says that maps `a` and `b` are sessions of one robot (it restarted in between): while one of
+    /// them is not placed, their pair is searched before every other, since a robot usually starts
+    /// again where it stopped.
+    pub fn relate(&mut self, a: usize, b: usize) {
+        if a != b {
+            self.kin.insert((a.min(b), a.max(b)));
+        }
+    }
+
     /// Makes the next round exact rather than quick, for when the robots have gone quiet: every
     /// map that grew at all is prepared again and every pair whose maps changed, or whose edge was
     /// tracked, is searched again with every check (still at most [`MergeConfig::max_refreshes`]
@@ -245,6 +257,7 @@ impl Merger {
         self.maps.remove(&id);
         self.pairs.retain(|&(a, b), _| a != id && b != id);
         self.compared.retain(|&(a, b), _| a != id && b != id);
+        self.kin.retain(|&(a, b)| a != id && b != id);
     }
 
     /// Merges the current revisions of all maps: a round of estimation ([`Merger::plan`],
@@ -292,6 +305,7 @@ impl Merger {
             maps,
             pairs: self.pairs.clone(),
             compared: self.compared.clone(),
+            kin: self.kin.clone(),
             next_generation: self.next_generation,
             prepared: Vec::new(),
             done: FxHashSet::default(),

@@ -155,6 +155,8 @@ pub struct Round {
     pub(super) maps: std::collections::BTreeMap<usize, RoundMap>,
     pub(super) pairs: FxHashMap<(usize, usize), CachedPair>,
     pub(super) compared: FxHashMap<(usize, usize), Compared>,
+    /// Pairs of map ids (lower first) that are sessions of one robot.
+    pub(super) kin: FxHashSet<(usize, usize)>,
     pub(super) next_generation: u64,
     /// Ids of the maps this round prepared.
     pub(super) prepared: Vec<usize>,
@@ -414,6 +416,7 @@ impl Round {
             let key = (ids[a], ids[b]);
             let placed = (self.merged.contains(&key.0), self.merged.contains(&key.1));
             let promise = match placed {
+                (false, _) | (_, false) if self.kin.contains(&(key.0.min(key.1), key.0.max(key.1))) => Promise::Kin,
                 (true, true) if self.candidate(key) == Some(false) => {
                     unmatched.push((a, b));
                     continue;
@@ -492,6 +495,9 @@ impl Round {
 /// The order only decides which pairs wait for a later round, never whether a pair is searched.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 enum Promise {
+    /// Two sessions of one robot, one or both not placed: a robot usually starts again where it
+    /// stopped, so its previous session is the likeliest overlap of all.
+    Kin,
     /// One map is placed, the other not, and their places show a candidate overlap: a link there
     /// places a map at once, and is likeliest.
     Candidate,

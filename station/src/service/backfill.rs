@@ -7,13 +7,18 @@
 //! A request that did not complete (it timed out on a slow or lossy link: whatever arrived is
 //! kept) is made again, for what is still missing, once `retry` has passed; and gaps that nothing
 //! new will reveal (the robot's source has ended) are asked for again by [`Backfill::recheck`].
+//!
+//! Wants are per robot session ([`Member`]); one request per robot is outstanding, whichever session
+//! it asks for. A robot that (re)appears is asked which session it is in now ([`Target::Current`]:
+//! its lowest keyframes held, no session named): a station that has not heard of that session yet
+//! learns it from the replies and then asks for the rest of it.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use proto::KeyframeRequest;
 
-use super::fleet_state::FleetState;
+use super::fleet_state::{FleetState, Member};
 
 /// Most sequence numbers listed in one request (the rest follow in the next one).
 pub const MAX_SEQS_PER_REQUEST: usize = 4096;
@@ -36,25 +41,35 @@ pub enum Ended {
     TimedOut,
 }
 
-/// Why the station wants keyframes from a robot.
+/// Why the station wants keyframes from a robot session.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Want {
     /// A keyframe arrived past a gap: ask for the gaps.
     Gaps,
-    /// The robot (re)appeared: ask for the gaps and everything after the newest keyframe held.
+    /// The session (re)appeared: ask for the gaps and everything after the newest keyframe held.
     Everything,
+}
+
+/// Which of a robot's sessions a request is for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Target {
+    /// A session the station holds keyframes of.
+    Session(u64),
+    /// Whichever session the robot is in now: asked for its lowest keyframe held, which names it.
+    Current,
 }
 
 /// The backfill planner of one fleet.
 #[derive(Clone, Debug)]
 pub struct Backfill {
     retry: Duration,
-    in_flight: BTreeSet<u32>,
-    wanted: BTreeMap<u32, Want>,
-    /// The gaps last asked for per robot, and when.
-    last_gaps: BTreeMap<u32, (Vec<u64>, Instant)>,
-    /// Robots whose last request did not complete, and when to ask them again.
-    again_at: BTreeMap<u32, Instant>,
+    /// Per robot with a request outstanding, what it asks for.
+    in_flight: BTreeMap<u32, Target>,
+    wanted: BTreeMap<(u32, Target), Want>,
+    /// The gaps last asked for per robot session, and when.
+    last_gaps: BTreeMap<Member, (Vec<u64>, Instant)>,
+    /// Requests that did not complete, and when to make them again.
+    again_at: BTreeMap<(u32, Target), Instant>,
 }
 
 impl Backfill {
@@ -62,75 +77,110 @@ impl Backfill {
     pub fn new(retry: Duration) -> Self {
         Self {
             retry,
-            in_flight: BTreeSet::new(),
+            in_flight: BTreeMap::new(),
             wanted: BTreeMap::new(),
             last_gaps: BTreeMap::new(),
             again_at: BTreeMap::new(),
         }
     }
 
-    /// Notes that keyframes are wanted from `robot`.
-    pub fn want(&mut self, robot: u32, want: Want) {
-        let w = self.wanted.entry(robot).or_insert(want);
+    /// Notes that keyframes are wanted from a robot session (a bare robot id: its session 0).
+    pub fn want(&mut self, member: impl Into<Member>, want: Want) {
+        let member = member.into();
+        self.want_target(member.robot, Target::Session(member.session), want);
+    }
+
+    /// Notes that `robot` (re)appeared: everything of its newest session held, and which session it
+    /// is in now.
+    pub fn appeared(&mut self, robot: u32, state: &FleetState) {
+        if let Some(newest) = state.newest_session(robot) {
+            self.want(newest, Want::Everything);
+        }
+        self.want_target(robot, Target::Current, Want::Everything);
+    }
+
+    fn want_target(&mut self, robot: u32, target: Target, want: Want) {
+        let w = self.wanted.entry((robot, target)).or_insert(want);
         *w = (*w).max(want);
     }
 
-    /// The requests to send now: one per robot with a want and no request outstanding.
+    /// The requests to send now: per robot without a request outstanding, the first of its wants
+    /// that asks for something.
     pub fn requests(&mut self, state: &FleetState, now: Instant) -> Vec<(u32, KeyframeRequest)> {
-        let due: Vec<u32> = self.again_at.iter().filter(|(_, at)| **at <= now).map(|(&r, _)| r).collect();
-        for robot in due {
-            self.again_at.remove(&robot);
-            self.want(robot, Want::Everything);
+        let due: Vec<(u32, Target)> = self.again_at.iter().filter(|(_, at)| **at <= now).map(|(&k, _)| k).collect();
+        for (robot, target) in due {
+            self.again_at.remove(&(robot, target));
+            self.want_target(robot, target, Want::Everything);
         }
-        let ready: Vec<(u32, Want)> =
-            self.wanted.iter().filter(|(r, _)| !self.in_flight.contains(r)).map(|(&r, &w)| (r, w)).collect();
+        let ready: Vec<((u32, Target), Want)> =
+            self.wanted.iter().filter(|((r, _), _)| !self.in_flight.contains_key(r)).map(|(&k, &w)| (k, w)).collect();
         let mut out = Vec::new();
-        for (robot, want) in ready {
-            self.wanted.remove(&robot);
-            if let Some(request) = self.request(state, robot, want, now) {
-                self.in_flight.insert(robot);
+        for ((robot, target), want) in ready {
+            if self.in_flight.contains_key(&robot) {
+                continue;
+            }
+            self.wanted.remove(&(robot, target));
+            if let Some(request) = self.request(state, robot, target, want, now) {
+                self.in_flight.insert(robot, target);
                 out.push((robot, request));
             }
         }
         out
     }
 
-    /// The request for `robot`, or `None` when there is nothing (new) to ask for.
-    fn request(&mut self, state: &FleetState, robot: u32, want: Want, now: Instant) -> Option<KeyframeRequest> {
-        let mut seqs = state.missing(robot);
+    /// The request for a session of `robot`, or `None` when there is nothing (new) to ask for.
+    fn request(
+        &mut self,
+        state: &FleetState,
+        robot: u32,
+        target: Target,
+        want: Want,
+        now: Instant,
+    ) -> Option<KeyframeRequest> {
+        let Target::Session(session) = target else {
+            // Of a robot never heard of, the first piece of everything; of one whose sessions are
+            // held, one keyframe is enough to tell whether it is in a new one.
+            let limit = if state.newest_session(robot).is_some() { 1 } else { MAX_KEYFRAMES_PER_REQUEST };
+            return Some(KeyframeRequest { seqs: vec![], from_seq: Some(0), limit: Some(limit), session: None });
+        };
+        let member = Member::new(robot, session);
+        let mut seqs = state.missing(member);
         seqs.truncate(MAX_SEQS_PER_REQUEST);
         let from_seq = match want {
-            Want::Everything => Some(state.robot(robot).and_then(|r| r.max_seq()).map_or(0, |s| s.saturating_add(1))),
+            Want::Everything => Some(state.robot(member).and_then(|r| r.max_seq()).map_or(0, |s| s.saturating_add(1))),
             Want::Gaps => None,
         };
         let asked_lately =
-            self.last_gaps.get(&robot).is_some_and(|(gaps, at)| *gaps == seqs && now.duration_since(*at) < self.retry);
+            self.last_gaps.get(&member).is_some_and(|(gaps, at)| *gaps == seqs && now.duration_since(*at) < self.retry);
         if from_seq.is_none() && (seqs.is_empty() || asked_lately) {
             return None;
         }
-        self.last_gaps.insert(robot, (seqs.clone(), now));
-        Some(KeyframeRequest { seqs, from_seq, limit: Some(MAX_KEYFRAMES_PER_REQUEST) })
+        self.last_gaps.insert(member, (seqs.clone(), now));
+        Some(KeyframeRequest { seqs, from_seq, limit: Some(MAX_KEYFRAMES_PER_REQUEST), session: Some(session) })
     }
 
     /// The request to `robot` has ended, at `now`.
     pub fn done(&mut self, robot: u32, ended: Ended, now: Instant) {
-        self.in_flight.remove(&robot);
-        match ended {
-            Ended::Complete => {}
+        let Some(target) = self.in_flight.remove(&robot) else { return };
+        match (ended, target) {
+            (Ended::Complete, _) => {}
             // The next piece: the gaps left, and everything after the newest keyframe now held.
-            Ended::Full => self.want(robot, Want::Everything),
-            Ended::TimedOut => {
-                self.again_at.insert(robot, now + self.retry);
+            (Ended::Full, Target::Session(_)) => self.want_target(robot, target, Want::Everything),
+            // Its replies named the session; one not held before is asked for in full when its
+            // first keyframe is inserted, a held one by the want of [`Backfill::appeared`].
+            (Ended::Full, Target::Current) => {}
+            (Ended::TimedOut, _) => {
+                self.again_at.insert((robot, target), now + self.retry);
             }
         }
     }
 
-    /// Wants the gaps of every robot that has some: called periodically, so that gaps no new
-    /// keyframe reveals are still asked for (each set of gaps at most every `retry`).
+    /// Wants the gaps of every robot session that has some: called periodically, so that gaps no
+    /// new keyframe reveals are still asked for (each set of gaps at most every `retry`).
     pub fn recheck(&mut self, state: &FleetState) {
-        for (&robot, held) in state.robots() {
+        for (&member, held) in state.robots() {
             if held.missing_count() > 0 {
-                self.want(robot, Want::Gaps);
+                self.want(member, Want::Gaps);
             }
         }
     }

@@ -83,6 +83,7 @@ pub fn placements_json(map: &GlobalMap) -> Value {
         .map(|r| {
             json!({
                 "robot": r.robot,
+                "session": r.session,
                 "transform": matrix(r.transform.as_ref()),
                 "confidence": r.confidence,
                 "status": status_name(r.status),
@@ -97,6 +98,8 @@ pub fn placements_json(map: &GlobalMap) -> Value {
             json!({
                 "robot_a": e.robot_a,
                 "robot_b": e.robot_b,
+                "session_a": e.session_a,
+                "session_b": e.session_b,
                 "transform": matrix(e.transform.as_ref()),
                 "confidence": e.confidence,
                 "inliers": e.inliers,
@@ -107,6 +110,7 @@ pub fn placements_json(map: &GlobalMap) -> Value {
         "fleet": map.fleet,
         "revision": map.revision,
         "reference_robot": map.reference_robot,
+        "reference_session": map.reference_session,
         "settled": map.settled,
         "robots": robots,
         "edges": edges,
@@ -193,6 +197,7 @@ fn keyframe_fields(k: &Keyframe) -> Value {
     let t = k.odom_pose.as_ref().map(|p| [p.tx, p.ty, p.tz].map(round3));
     json!({
         "robot": k.robot,
+        "session": k.session,
         "seq": k.seq,
         "points": k.cloud.as_ref().map_or(0, |c| c.points),
         "translation": t,
@@ -200,7 +205,13 @@ fn keyframe_fields(k: &Keyframe) -> Value {
 }
 
 fn posegraph_fields(u: &PoseGraphUpdate) -> Value {
-    json!({ "robot": u.robot, "revision": u.revision, "poses": u.poses.len(), "loops": u.loops.len() })
+    json!({
+        "robot": u.robot,
+        "session": u.session,
+        "revision": u.revision,
+        "poses": u.poses.len(),
+        "loops": u.loops.len(),
+    })
 }
 
 fn global_map_fields(m: &GlobalMap) -> Value {

@@ -1,6 +1,10 @@
 //! What the station holds for each robot of its fleet: keyframes by sequence number (the bytes as
 //! received and the pose they carry) and the latest optimised poses. Pure: no I/O.
 //!
+//! A robot is held per session ([`Member`]): an edge that restarts begins a new odometry frame and
+//! numbers its keyframes from 0 again, so each session is a map of its own, and the merge places it
+//! like any other robot's.
+//!
 //! The decoded clouds are not kept: a 0.2 m keyframe's points take three to four times its encoded
 //! bytes (144 kB against 41 kB on the campus), and the merge needs them only when a keyframe first
 //! enters its robot's map or the map is rebuilt at new poses; it decodes them then.
@@ -17,11 +21,51 @@ use nalgebra::Isometry3;
 /// Most gaps [`RobotState::missing`] lists (the backfill asks for at most 4096 at a time).
 pub const MAX_LISTED_GAPS: usize = 4096;
 
+/// One session of one robot: what an edge sent between one start and the next, a map of its own.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Member {
+    /// Robot id.
+    pub robot: u32,
+    /// The robot's session (higher is newer; 0 for a robot that sends none).
+    pub session: u64,
+}
+
+impl Member {
+    /// Session `session` of `robot`.
+    pub fn new(robot: u32, session: u64) -> Self {
+        Member { robot, session }
+    }
+
+    /// Its name in frames, logs and status: `robotN` for session 0, so that a fleet without
+    /// restarts keeps the names it always had, `robotN/sK` for a later session.
+    pub fn name(&self) -> String {
+        match self.session {
+            0 => format!("robot{}", self.robot),
+            s => format!("robot{}/s{s}", self.robot),
+        }
+    }
+}
+
+/// A bare robot id is its session 0: what a message without a session says.
+impl From<u32> for Member {
+    fn from(robot: u32) -> Self {
+        Member { robot, session: 0 }
+    }
+}
+
+impl std::fmt::Display for Member {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.name())
+    }
+}
+
 /// A keyframe checked and decoded by [`super::ingest`].
 #[derive(Clone, Debug)]
 pub struct ReceivedKeyframe {
     /// Robot id (the key expression's and the message's, which agree).
     pub robot: u32,
+    /// The robot's session, from the message.
+    pub session: u64,
     /// Sequence number.
     pub seq: u64,
     /// The protobuf `Keyframe` exactly as received: what is persisted and what a conflict compares.
@@ -33,6 +77,11 @@ pub struct ReceivedKeyframe {
 }
 
 impl ReceivedKeyframe {
+    /// The robot session it belongs to.
+    pub fn member(&self) -> Member {
+        Member::new(self.robot, self.session)
+    }
+
     /// What the station holds of it.
     fn held(&self) -> HeldKeyframe {
         HeldKeyframe { bytes: Arc::clone(&self.bytes), odom_pose: self.odom_pose }
@@ -55,7 +104,7 @@ pub enum Inserted {
     New,
     /// The same bytes again: nothing changed.
     Duplicate,
-    /// Different bytes for a held sequence number: the first ones were kept.
+    /// Different bytes for a held sequence number of the same session: the first ones were kept.
     Conflict,
 }
 
@@ -68,7 +117,7 @@ pub struct Basis {
     pub pose_revision: Option<u64>,
 }
 
-/// One robot's keyframes and poses.
+/// One robot session's keyframes and poses.
 #[derive(Clone, Debug, Default)]
 pub struct RobotState {
     keyframes: BTreeMap<u64, HeldKeyframe>,
@@ -151,16 +200,16 @@ impl RobotState {
     }
 }
 
-/// Every robot of the fleet.
+/// Every robot session of the fleet.
 #[derive(Clone, Debug, Default)]
 pub struct FleetState {
-    robots: BTreeMap<u32, RobotState>,
+    robots: BTreeMap<Member, RobotState>,
 }
 
 impl FleetState {
-    /// Adds a keyframe unless its sequence number is already held.
+    /// Adds a keyframe unless its session's sequence number is already held.
     pub fn insert_keyframe(&mut self, keyframe: &ReceivedKeyframe) -> Inserted {
-        let robot = self.robots.entry(keyframe.robot).or_default();
+        let robot = self.robots.entry(keyframe.member()).or_default();
         match robot.keyframes.get(&keyframe.seq) {
             Some(held) if held.bytes == keyframe.bytes => Inserted::Duplicate,
             Some(_) => {
@@ -176,10 +225,15 @@ impl FleetState {
         }
     }
 
-    /// Applies a pose-graph update; returns true when it changed the robot's poses. Revisions older
-    /// than the one held are ignored.
-    pub fn apply_poses(&mut self, robot: u32, revision: u64, poses: BTreeMap<u64, Isometry3<f64>>) -> bool {
-        let state = self.robots.entry(robot).or_default();
+    /// Applies a pose-graph update of a robot session; returns true when it changed its poses.
+    /// Revisions older than the one held are ignored.
+    pub fn apply_poses(
+        &mut self,
+        member: impl Into<Member>,
+        revision: u64,
+        poses: BTreeMap<u64, Isometry3<f64>>,
+    ) -> bool {
+        let state = self.robots.entry(member.into()).or_default();
         if state.pose_revision.is_some_and(|held| revision <= held) {
             return false;
         }
@@ -193,19 +247,34 @@ impl FleetState {
         true
     }
 
-    /// One robot, if seen.
-    pub fn robot(&self, robot: u32) -> Option<&RobotState> {
-        self.robots.get(&robot)
+    /// One robot session (a bare robot id: its session 0), if seen.
+    pub fn robot(&self, member: impl Into<Member>) -> Option<&RobotState> {
+        self.robots.get(&member.into())
     }
 
-    /// Every robot seen, by id.
-    pub fn robots(&self) -> &BTreeMap<u32, RobotState> {
+    /// Every robot session seen, by robot and session.
+    pub fn robots(&self) -> &BTreeMap<Member, RobotState> {
         &self.robots
     }
 
-    /// Gaps of one robot (empty for an unknown robot).
-    pub fn missing(&self, robot: u32) -> Vec<u64> {
-        self.robots.get(&robot).map(RobotState::missing).unwrap_or_default()
+    /// The sessions seen of `robot`, oldest first.
+    pub fn sessions(&self, robot: u32) -> impl DoubleEndedIterator<Item = (&Member, &RobotState)> {
+        self.robots.range(Member::new(robot, 0)..=Member::new(robot, u64::MAX))
+    }
+
+    /// The newest session seen of `robot`.
+    pub fn newest_session(&self, robot: u32) -> Option<Member> {
+        self.sessions(robot).next_back().map(|(m, _)| *m)
+    }
+
+    /// The session of `member`'s robot just before it, if one was seen.
+    pub fn previous_session(&self, member: Member) -> Option<Member> {
+        self.robots.range(Member::new(member.robot, 0)..member).next_back().map(|(m, _)| *m)
+    }
+
+    /// Gaps of one robot session (empty for an unknown one).
+    pub fn missing(&self, member: impl Into<Member>) -> Vec<u64> {
+        self.robots.get(&member.into()).map(RobotState::missing).unwrap_or_default()
     }
 
     /// Keyframes held over all robots.
@@ -218,13 +287,22 @@ impl FleetState {
         self.robots.values().map(|r| r.conflicts).sum()
     }
 
-    /// Keyframes held per robot.
+    /// Keyframes held per robot, over its sessions.
     pub fn keyframe_counts(&self) -> BTreeMap<u32, usize> {
+        let mut counts = BTreeMap::new();
+        for (member, r) in &self.robots {
+            *counts.entry(member.robot).or_default() += r.keyframes.len();
+        }
+        counts
+    }
+
+    /// Keyframes held per robot session.
+    pub fn session_counts(&self) -> BTreeMap<Member, usize> {
         self.robots.iter().map(|(&id, r)| (id, r.keyframes.len())).collect()
     }
 
-    /// Every robot's current basis.
-    pub fn basis(&self) -> BTreeMap<u32, Basis> {
+    /// Every robot session's current basis.
+    pub fn basis(&self) -> BTreeMap<Member, Basis> {
         self.robots.iter().map(|(&id, r)| (id, r.basis())).collect()
     }
 }

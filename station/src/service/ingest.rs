@@ -11,7 +11,7 @@ use prost::Message;
 use proto::codec::{self, DecodeLimits};
 use proto::{Fleet, Keyframe, PoseGraphUpdate};
 
-use super::fleet_state::ReceivedKeyframe;
+use super::fleet_state::{Member, ReceivedKeyframe};
 
 /// A loop edge of a robot's pose graph: keyframe sequence numbers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -48,6 +48,8 @@ pub struct Malformed {
 pub struct ReceivedPoses {
     /// Robot id.
     pub robot: u32,
+    /// The robot's session the poses are of.
+    pub session: u64,
     /// The update's revision.
     pub revision: u64,
     /// Optimised poses by sequence number.
@@ -63,7 +65,15 @@ pub fn keyframe(fleet: &Fleet, robot: u32, key: &str, bytes: &[u8]) -> Result<Re
     check_sender(fleet, robot, &kf.fleet, kf.robot).map_err(&bad)?;
     let odom_pose = pose(kf.odom_pose.as_ref()).map_err(|e| bad(format!("odom_pose: {e}")))?;
     let cloud = keyframe_cloud(&kf).map_err(&bad)?;
-    Ok(ReceivedKeyframe { robot, seq: kf.seq, bytes: Arc::from(bytes), odom_pose, cloud: Arc::new(cloud) })
+    let (seq, session) = (kf.seq, kf.session);
+    Ok(ReceivedKeyframe { robot, session, seq, bytes: Arc::from(bytes), odom_pose, cloud: Arc::new(cloud) })
+}
+
+impl ReceivedPoses {
+    /// The robot session whose poses these are.
+    pub fn member(&self) -> Member {
+        Member::new(self.robot, self.session)
+    }
 }
 
 /// Checks and decodes a pose-graph update that arrived on `key` for `robot` of `fleet`.
@@ -77,7 +87,7 @@ pub fn poses(fleet: &Fleet, robot: u32, key: &str, bytes: &[u8]) -> Result<Recei
         poses.insert(p.seq, iso);
     }
     let loops = update.loops.iter().map(|l| LoopEdge { from: l.from_seq, to: l.to_seq }).collect();
-    Ok(ReceivedPoses { robot, revision: update.revision, poses, loops })
+    Ok(ReceivedPoses { robot, session: update.session, revision: update.revision, poses, loops })
 }
 
 /// Builds the error for a payload of `kind` on `key` from a reason.

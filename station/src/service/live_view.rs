@@ -2,6 +2,8 @@
 //! published on the topics of [`live::topics`] as it changes. Only built when a [`Live`] is given
 //! ([`super::StationConfig::live`]); with no client subscribed and no recording, the streamed
 //! topics build nothing.
+//!
+//! The topics have one frame per robot: a robot that restarted is shown by its newest session.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -12,7 +14,7 @@ use proto::{GlobalMap, MergeStatus, StationStatus};
 use serde_json::json;
 
 use super::client::memory_mb;
-use super::fleet_state::{FleetState, ReceivedKeyframe, RobotState};
+use super::fleet_state::{FleetState, Member, ReceivedKeyframe, RobotState};
 use super::ingest::LoopEdge;
 use super::merge_job::MapCloud;
 
@@ -29,35 +31,46 @@ impl StationView {
         StationView { live, loops: BTreeMap::new() }
     }
 
-    /// A keyframe the station had not held.
-    pub fn keyframe(&self, kf: &ReceivedKeyframe) {
-        self.live.keyframe(kf.robot, &kf.odom_pose, &kf.cloud, Stamp::Now);
+    /// A keyframe the station had not held (held already: `state` has it), of the robot's newest
+    /// session.
+    pub fn keyframe(&self, kf: &ReceivedKeyframe, state: &FleetState) {
+        if state.newest_session(kf.robot) == Some(kf.member()) {
+            self.live.keyframe(kf.robot, &kf.odom_pose, &kf.cloud, Stamp::Now);
+        }
     }
 
-    /// A pose-graph update of `robot` that changed its poses: its trajectory and loop edges.
-    pub fn poses(&mut self, robot: u32, loops: Vec<LoopEdge>, state: &FleetState) {
-        self.loops.insert(robot, loops);
-        if let Some(r) = state.robot(robot) {
-            self.robot_shape(robot, r);
+    /// A pose-graph update of a robot session that changed its poses: its trajectory and loop
+    /// edges, when it is the robot's newest session.
+    pub fn poses(&mut self, member: Member, loops: Vec<LoopEdge>, state: &FleetState) {
+        if state.newest_session(member.robot) != Some(member) {
+            return;
+        }
+        self.loops.insert(member.robot, loops);
+        if let Some(r) = state.robot(member) {
+            self.robot_shape(member.robot, r);
         }
     }
 
     /// A published global map: the map, the robots' frames, trajectories, loops and statuses.
     pub fn map(&self, map: &GlobalMap, cloud: &MapCloud, state: &FleetState) {
         self.live.map(&cloud.cloud, &cloud.robots, Stamp::Now);
+        let newest =
+            |p: &&proto::RobotPlacement| state.newest_session(p.robot) == Some(Member::new(p.robot, p.session));
         let placed: Vec<(String, Isometry3<f64>)> = map
             .robots
             .iter()
+            .filter(newest)
             .filter(|p| p.status() == MergeStatus::Merged)
             .filter_map(|p| Some((topics::robot_frame(p.robot), Isometry3::try_from(p.transform.as_ref()?).ok()?)))
             .collect();
         self.live.frames(topics::MAP_FRAME, &placed, Kind::Latched, Stamp::Now);
-        for placement in &map.robots {
+        for placement in map.robots.iter().filter(newest) {
             let robot = placement.robot;
-            let held = state.robot(robot);
+            let held = state.robot(Member::new(robot, placement.session));
             self.live.robot_status(robot, Stamp::Now, || {
                 json!({
                     "robot": robot,
+                    "session": placement.session,
                     "revision": map.revision,
                     "status": if placement.status() == MergeStatus::Merged { "merged" } else { "unmerged" },
                     "confidence": placement.confidence,
@@ -65,7 +78,7 @@ impl StationView {
                     "keyframes_held": held.map_or(0, |r| r.keyframes().len()),
                     "pose_revision": held.and_then(RobotState::pose_revision),
                     "loops": self.loops.get(&robot).map_or(0, Vec::len),
-                    "reference": robot == map.reference_robot,
+                    "reference": robot == map.reference_robot && placement.session == map.reference_session,
                 })
             });
             if let Some(r) = held {

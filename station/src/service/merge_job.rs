@@ -21,16 +21,18 @@ use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};
 
 use super::estimator::{Estimator, Notify};
-use super::fleet_state::{Basis, FleetState};
+use super::fleet_state::{Basis, FleetState, Member};
 use super::ingest;
 use crate::merge::places::{Place, Places};
 use crate::merge::{MergeConfig, MergeError, MergeReport, Merger, PairVerdict, RoundTiming};
 
-/// One robot's input to a job: its keyframe clouds with their poses, at one map revision.
+/// One robot session's input to a job: its keyframe clouds with their poses, at one map revision.
 #[derive(Clone, Debug)]
 pub struct RobotSnapshot {
-    /// Robot id; also the merger's map id, so the mapping never changes.
+    /// Robot id.
     pub robot: u32,
+    /// The robot's session: each session is a map of its own.
+    pub session: u64,
     /// The robot's map revision.
     pub revision: u64,
     /// Keyframe clouds (sensor frame) and the poses that move them into the robot's odometry frame.
@@ -51,13 +53,21 @@ pub struct PlacedKeyframe {
     pub pose: Isometry3<f64>,
 }
 
-/// Snapshots of every robot, cheap to take (payloads are shared).
+impl RobotSnapshot {
+    /// The robot session it is of.
+    pub fn member(&self) -> Member {
+        Member::new(self.robot, self.session)
+    }
+}
+
+/// Snapshots of every robot session, cheap to take (payloads are shared).
 pub fn snapshot(state: &FleetState) -> Vec<RobotSnapshot> {
     state
         .robots()
         .iter()
-        .map(|(&robot, r)| RobotSnapshot {
-            robot,
+        .map(|(&member, r)| RobotSnapshot {
+            robot: member.robot,
+            session: member.session,
             revision: r.revision(),
             keyframes: r
                 .keyframes()
@@ -76,8 +86,8 @@ pub struct MergeOutcome {
     pub map: GlobalMap,
     /// Its protobuf encoding, exactly what is published and persisted.
     pub bytes: Vec<u8>,
-    /// Per robot, what its map was built from.
-    pub basis: BTreeMap<u32, Basis>,
+    /// Per robot session, what its map was built from.
+    pub basis: BTreeMap<Member, Basis>,
     /// Wall time of the job.
     pub elapsed: Duration,
     /// The round of estimation this job applied, if one had finished: its wall time.
@@ -86,8 +96,8 @@ pub struct MergeOutcome {
     pub estimating: bool,
     /// The global map's points as merged, before the codec, with their robots (for the live view).
     pub cloud: MapCloud,
-    /// Per robot, the bytes the merge keeps for it between jobs (see [`MergeWorker::memory`]).
-    pub memory: BTreeMap<u32, u64>,
+    /// Per robot session, the bytes the merge keeps for it between jobs (see [`MergeWorker::memory`]).
+    pub memory: BTreeMap<Member, u64>,
 }
 
 /// The global map's points with the robot each came from.
@@ -97,6 +107,42 @@ pub struct MapCloud {
     pub cloud: PointCloud,
     /// Per point, its robot.
     pub robots: Vec<u32>,
+}
+
+// Map ids hold a robot id and a session's rank (see `MapIds`).
+const _: () = assert!(usize::BITS >= 64);
+
+/// The merger's map id of each robot session: the robot id in the high 32 bits, the session's rank
+/// among the robot's sessions (as first given) in the low ones. Maps keep the order of their robot
+/// ids (the merger breaks ties by id), and a fleet without restarts orders as it always did.
+#[derive(Default)]
+struct MapIds {
+    ids: BTreeMap<Member, usize>,
+    members: FxHashMap<usize, Member>,
+}
+
+impl MapIds {
+    /// The id of `member`, given one the first time.
+    fn id(&mut self, member: Member) -> usize {
+        if let Some(&id) = self.ids.get(&member) {
+            return id;
+        }
+        let rank = self.ids.range(Member::new(member.robot, 0)..=Member::new(member.robot, u64::MAX)).count();
+        let id = ((member.robot as usize) << 32) | rank;
+        self.ids.insert(member, id);
+        self.members.insert(id, member);
+        id
+    }
+
+    /// The map id of the session of `member`'s robot just before it, if it has one.
+    fn previous(&self, member: Member) -> Option<usize> {
+        self.ids.range(Member::new(member.robot, 0)..member).next_back().map(|(_, &id)| id)
+    }
+
+    /// The robot session of map `id` (ids come from [`MapIds::id`]).
+    fn member(&self, id: usize) -> Member {
+        self.members.get(&id).copied().unwrap_or_default()
+    }
 }
 
 /// One robot's local map as the worker built it: grown keyframe by keyframe while the poses stay.
@@ -121,12 +167,13 @@ struct LocalMap {
 pub struct MergeWorker {
     merger: Merger,
     estimator: Estimator,
-    /// Per robot, what the jobs keep of it.
-    robots: BTreeMap<u32, RobotState>,
+    /// Per robot session, what the jobs keep of it.
+    robots: BTreeMap<Member, RobotState>,
+    ids: MapIds,
     voxel: f32,
 }
 
-/// What the jobs keep of one robot. Each robot's is brought up to its snapshot on its own, the
+/// What the jobs keep of one robot session. Each robot's is brought up to its snapshot on its own, the
 /// robots in parallel: adding new keyframes to the local maps one robot after the other took most
 /// of a merge at 16 robots (each point a lookup in a grid of a few hundred thousand voxels).
 #[derive(Default)]
@@ -206,7 +253,7 @@ impl MergeWorker {
     pub fn new(config: MergeConfig, notify: Notify) -> Result<Self, MergeError> {
         let voxel = local_map_voxel(&config);
         let estimator = Estimator::new(notify).map_err(|e| MergeError::Threads(e.to_string()))?;
-        Ok(Self { merger: Merger::new(config)?, estimator, robots: BTreeMap::new(), voxel })
+        Ok(Self { merger: Merger::new(config)?, estimator, robots: BTreeMap::new(), ids: MapIds::default(), voxel })
     }
 
     /// Merges the robots' current maps into global map `revision` of `fleet` at the placements
@@ -235,12 +282,12 @@ impl MergeWorker {
         }
         let report = self.merger.compose()?;
         let message = Instant::now();
-        let map = global_map(fleet, revision, &report, robots);
+        let map = global_map(fleet, revision, &report, robots, &self.ids);
         let bytes = map.encode_to_vec();
-        log_report(&report, round.as_ref(), keyframes, message.elapsed());
-        let basis = robots.iter().map(|r| (r.robot, r.basis)).collect();
-        // Map ids are robot ids (see `RobotSnapshot::robot`).
-        let cloud = MapCloud { robots: report.origins.iter().map(|&id| id as u32).collect(), cloud: report.global_map };
+        log_report(&report, &self.ids, round.as_ref(), keyframes, message.elapsed());
+        let basis = robots.iter().map(|r| (r.member(), r.basis)).collect();
+        let origins = report.origins.iter().map(|&id| self.ids.member(id).robot).collect();
+        let cloud = MapCloud { robots: origins, cloud: report.global_map };
         // A merge frees hundreds of megabytes of preparations, decoded keyframes and pair work on
         // rayon's threads; glibc keeps what each thread freed in its own arena until told.
         cloud::memory::release_free_memory();
@@ -282,14 +329,26 @@ impl MergeWorker {
     /// [`RobotState`]) and gives the merger the maps that changed.
     fn give(&mut self, robots: &[RobotSnapshot], settle: bool) {
         for r in robots {
-            self.robots.entry(r.robot).or_default();
+            self.robots.entry(r.member()).or_default();
         }
-        let snapshots: FxHashMap<u32, &RobotSnapshot> = robots.iter().map(|r| (r.robot, r)).collect();
+        let snapshots: FxHashMap<Member, (&RobotSnapshot, usize)> =
+            robots.iter().map(|r| (r.member(), (r, self.ids.id(r.member())))).collect();
+        for r in robots {
+            if let Some((previous, id)) = self.ids.previous(r.member()).zip(self.ids.ids.get(&r.member())) {
+                self.merger.relate(previous, *id);
+            }
+        }
         let (voxel, visibility) = (self.voxel, &self.merger.config().visibility);
-        let mut work: Vec<(&RobotSnapshot, &mut RobotState)> =
-            self.robots.iter_mut().filter_map(|(robot, state)| Some((*snapshots.get(robot)?, state))).collect();
+        let mut work: Vec<(&RobotSnapshot, usize, &mut RobotState)> = self
+            .robots
+            .iter_mut()
+            .filter_map(|(member, state)| {
+                let (r, id) = *snapshots.get(member)?;
+                Some((r, id, state))
+            })
+            .collect();
         let updates: Vec<Update> =
-            work.par_iter_mut().filter_map(|(r, state)| state.update(r, settle, voxel, visibility)).collect();
+            work.par_iter_mut().filter_map(|(r, id, state)| state.update(r, *id, settle, voxel, visibility)).collect();
         for u in updates {
             if u.rebuilt {
                 // At the revision the merger holds when only the order changed.
@@ -302,20 +361,20 @@ impl MergeWorker {
         }
     }
 
-    /// Per robot, the bytes kept for it between jobs: its local map, its keyframes' range images
-    /// and place descriptors, and the merger's copy of its map with the map's preparation
+    /// Per robot session, the bytes kept for it between jobs: its local map, its keyframes' range
+    /// images and place descriptors, and the merger's copy of its map with the map's preparation
     /// (features, Gaussians).
-    pub fn memory(&self) -> BTreeMap<u32, u64> {
+    pub fn memory(&self) -> BTreeMap<Member, u64> {
         self.robots
             .iter()
-            .filter_map(|(&robot, state)| {
+            .filter_map(|(&member, state)| {
                 let local = state.local.as_ref()?;
                 let images = state.images.values().map(|i| i.heap_bytes()).sum::<usize>()
                     + state.images.len() * std::mem::size_of::<(u64, Arc<RangeImage>)>();
-                let merger = self.merger.heap_bytes_of(robot as usize).unwrap_or(0);
+                let merger = self.ids.ids.get(&member).and_then(|&id| self.merger.heap_bytes_of(id)).unwrap_or(0);
                 let included = map_bytes::<u64, ()>(local.included.capacity());
                 let places = state.places.heap_bytes();
-                Some((robot, (local.map.heap_bytes() + included + images + places + merger) as u64))
+                Some((member, (local.map.heap_bytes() + included + images + places + merger) as u64))
             })
             .collect()
     }
@@ -326,7 +385,14 @@ impl RobotState {
     /// poses rebuild it (the map changes shape), and so does a `settle` of a map that grew out of
     /// order: a fleet at rest gets the map its keyframes give in sequence order, whatever order
     /// the network brought them in. `None` when the merger already holds this revision.
-    fn update(&mut self, r: &RobotSnapshot, settle: bool, voxel: f32, visibility: &VisibilityConfig) -> Option<Update> {
+    fn update(
+        &mut self,
+        r: &RobotSnapshot,
+        id: usize,
+        settle: bool,
+        voxel: f32,
+        visibility: &VisibilityConfig,
+    ) -> Option<Update> {
         let current =
             self.local.as_ref().filter(|m| m.pose_revision == r.basis.pose_revision && (m.in_order || !settle));
         if current.is_some_and(|m| m.revision == r.revision) {
@@ -352,7 +418,7 @@ impl RobotState {
             .collect();
         // A piece at a time: a rebuild at new poses decodes every keyframe of the robot.
         for piece in missing.chunks(DECODED_AT_ONCE) {
-            for kf in decode(r.robot, piece, images, visibility) {
+            for kf in decode(r.member(), piece, images, visibility) {
                 if let Some(first) = kf.first {
                     images.insert(kf.seq, first.image);
                     places.described.push(Described { seq: kf.seq, context: first.context });
@@ -369,8 +435,8 @@ impl RobotState {
         let cloud = local.map.cloud();
         if settle {
             tracing::debug!(
-                "robot {}: settling on a map of {} keyframes, {} points{}, digest {:016x}",
-                r.robot,
+                "{}: settling on a map of {} keyframes, {} points{}, digest {:016x}",
+                r.member(),
                 local.included.len(),
                 cloud.len(),
                 if rebuilt { ", rebuilt" } else { "" },
@@ -378,7 +444,7 @@ impl RobotState {
             );
         }
         let places = places.places(r);
-        Some(Update { id: r.robot as usize, revision: r.revision, cloud, rebuilt, views: self.views(r), places })
+        Some(Update { id, revision: r.revision, cloud, rebuilt, views: self.views(r), places })
     }
 
     /// The robot's keyframes as its sensor saw them, at the snapshot's poses.
@@ -411,12 +477,12 @@ struct FirstDecode {
 /// 144 kB each) stay a few megabytes while a robot's whole map is rebuilt.
 const DECODED_AT_ONCE: usize = 64;
 
-/// Decodes `keyframes` of `robot` in parallel and, for those without a range image yet, makes it
+/// Decodes `keyframes` of `robot` (a session) in parallel and, for those without a range image yet, makes it
 /// and lays out their place descriptors (once per keyframe: in the sensor frame, new poses only
 /// move them). A keyframe that no longer decodes (it
 /// passed the checks when it arrived) is logged and left out.
 fn decode(
-    robot: u32,
+    robot: Member,
     keyframes: &[&PlacedKeyframe],
     images: &BTreeMap<u64, Arc<RangeImage>>,
     config: &VisibilityConfig,
@@ -431,7 +497,7 @@ fn decode(
                         Some(Ok(c)) => Some(Arc::new(Comparable::new(&c))),
                         Some(Err(e)) => {
                             tracing::warn!(
-                                "robot {robot} keyframe {}: unusable scan context ({e}); the robot's map is searched against every other",
+                                "{robot} keyframe {}: unusable scan context ({e}); the robot's map is searched against every other",
                                 kf.seq
                             );
                             None
@@ -442,7 +508,7 @@ fn decode(
                 Some(Decoded { seq: kf.seq, pose: kf.pose, cloud: held.cloud, first })
             }
             Err(e) => {
-                tracing::error!("robot {robot} keyframe {} no longer decodes, left out of its map: {e}", kf.seq);
+                tracing::error!("{robot} keyframe {} no longer decodes, left out of its map: {e}", kf.seq);
                 None
             }
         })
@@ -463,12 +529,12 @@ fn digest(cloud: &PointCloud) -> u64 {
 /// Why pairs were refused and where the time went: what an operator needs when a robot stays out.
 /// `keyframes` is the time spent bringing the robots' local maps up to their snapshots,
 /// `message` the time spent making and encoding the published message.
-fn log_report(report: &MergeReport, round: Option<&RoundTiming>, keyframes: Duration, message: Duration) {
-    let id = |position: usize| report.maps[position].id;
+fn log_report(report: &MergeReport, ids: &MapIds, round: Option<&RoundTiming>, keyframes: Duration, message: Duration) {
+    let id = |position: usize| ids.member(report.maps[position].id);
     for pair in report.pairs.iter().filter(|p| !p.cached) {
         match &pair.verdict {
             PairVerdict::Edge(e) => tracing::info!(
-                "robots {} and {}: edge{}, confidence {:.3}, {} inliers, acceptance {}; placement ({:.2}, {:.2}, {:.2}) m, yaw {:.1} deg",
+                "{} and {}: edge{}, confidence {:.3}, {} inliers, acceptance {}; placement ({:.2}, {:.2}, {:.2}) m, yaw {:.1} deg",
                 id(pair.a),
                 id(pair.b),
                 match (e.tracked, e.around) {
@@ -490,13 +556,13 @@ fn log_report(report: &MergeReport, round: Option<&RoundTiming>, keyframes: Dura
                 let (x, y, z) = (t.translation.x, t.translation.y, t.translation.z);
                 let yaw = t.rotation.euler_angles().2.to_degrees();
                 tracing::info!(
-                    "robots {} and {}: no edge ({reason}); best placement ({x:.2}, {y:.2}, {z:.2}) m, yaw {yaw:.1} deg",
+                    "{} and {}: no edge ({reason}); best placement ({x:.2}, {y:.2}, {z:.2}) m, yaw {yaw:.1} deg",
                     id(pair.a),
                     id(pair.b)
                 )
             }
             PairVerdict::Rejected { reason, best_transform: None, .. } => {
-                tracing::info!("robots {} and {}: no edge ({reason})", id(pair.a), id(pair.b))
+                tracing::info!("{} and {}: no edge ({reason})", id(pair.a), id(pair.b))
             }
         }
     }
@@ -526,36 +592,47 @@ fn local_map_voxel(config: &MergeConfig) -> f32 {
     config.pairwise.global.preprocess.voxel_size.min(config.refine_voxel).min(config.output_voxel)
 }
 
-/// The `GlobalMap` message of a merge report.
-fn global_map(fleet: &Fleet, revision: u64, report: &MergeReport, robots: &[RobotSnapshot]) -> GlobalMap {
-    let keyframes: BTreeMap<u32, u64> = robots.iter().map(|r| (r.robot, r.keyframes.len() as u64)).collect();
-    let robot_of = |position: usize| report.maps[position].id as u32;
+/// The `GlobalMap` message of a merge report: one placement per robot session.
+fn global_map(fleet: &Fleet, revision: u64, report: &MergeReport, robots: &[RobotSnapshot], ids: &MapIds) -> GlobalMap {
+    let keyframes: BTreeMap<Member, u64> = robots.iter().map(|r| (r.member(), r.keyframes.len() as u64)).collect();
+    let member_of = |position: usize| ids.member(report.maps[position].id);
     let placements = report
         .maps
         .iter()
-        .map(|m| RobotPlacement {
-            robot: m.id as u32,
-            transform: Some(m.transform().into()),
-            confidence: m.confidence(),
-            status: if m.is_merged() { MergeStatus::Merged } else { MergeStatus::Unmerged } as i32,
-            keyframes: keyframes.get(&(m.id as u32)).copied().unwrap_or(0),
+        .map(|m| {
+            let member = ids.member(m.id);
+            RobotPlacement {
+                robot: member.robot,
+                transform: Some(m.transform().into()),
+                confidence: m.confidence(),
+                status: if m.is_merged() { MergeStatus::Merged } else { MergeStatus::Unmerged } as i32,
+                keyframes: keyframes.get(&member).copied().unwrap_or(0),
+                session: member.session,
+            }
         })
         .collect();
     let edges = report
         .edges()
         .filter(|e| report.tree.contains(&(e.a, e.b)) || report.tree.contains(&(e.b, e.a)))
-        .map(|e| MergeEdge {
-            robot_a: robot_of(e.a),
-            robot_b: robot_of(e.b),
-            transform: Some(e.transform.into()),
-            confidence: e.confidence.score,
-            inliers: e.inliers as u64,
+        .map(|e| {
+            let (a, b) = (member_of(e.a), member_of(e.b));
+            MergeEdge {
+                robot_a: a.robot,
+                robot_b: b.robot,
+                transform: Some(e.transform.into()),
+                confidence: e.confidence.score,
+                inliers: e.inliers as u64,
+                session_a: a.session,
+                session_b: b.session,
+            }
         })
         .collect();
+    let reference = report.reference.map(member_of).unwrap_or_default();
     GlobalMap {
         fleet: fleet.to_string(),
         revision,
-        reference_robot: report.reference.map_or(0, robot_of),
+        reference_robot: reference.robot,
+        reference_session: reference.session,
         robots: placements,
         edges,
         cloud: Some(compress(&report.global_map)),
@@ -607,6 +684,7 @@ mod tests {
             odom_pose: Some(Pose::from(pose)),
             scan_context: None,
             cloud: Some(CompressedCloud { data: data.into(), points: cloud.len() as u64 }),
+            session: 0,
         };
         PlacedKeyframe { seq, bytes: msg.encode_to_vec().into(), pose }
     }
@@ -615,6 +693,7 @@ mod tests {
     fn snapshot_of(seqs: &[u64]) -> RobotSnapshot {
         RobotSnapshot {
             robot: ROBOT,
+            session: 0,
             revision: seqs.len() as u64,
             keyframes: seqs.iter().map(|&s| placed(s)).collect(),
             basis: Basis { keyframes: seqs.len() as u64, pose_revision: None },
@@ -623,8 +702,9 @@ mod tests {
 
     /// The robot's local map, checked to be what the merger holds.
     fn local_map(worker: &MergeWorker) -> Vec<Point3<f32>> {
-        let points = worker.robots[&ROBOT].local.as_ref().expect("given").map.cloud().points;
-        let given = worker.merger.cloud_of(ROBOT as usize).expect("the merger holds the map");
+        let member = Member::from(ROBOT);
+        let points = worker.robots[&member].local.as_ref().expect("given").map.cloud().points;
+        let given = worker.merger.cloud_of(worker.ids.ids[&member]).expect("the merger holds the map");
         assert!(given.points == points, "the merger holds another map than the local one");
         points
     }
@@ -644,7 +724,7 @@ mod tests {
         gapped.give(&[snapshot_of(&all)], true);
         assert!(local_map(&gapped) == local_map(&ordered), "the settled map is not the in-order one");
         // A map that grew in order is kept as it is by a settle, and stays the same.
-        let in_order = |w: &MergeWorker| w.robots[&ROBOT].local.as_ref().is_some_and(|l| l.in_order);
+        let in_order = |w: &MergeWorker| w.robots[&Member::from(ROBOT)].local.as_ref().is_some_and(|l| l.in_order);
         assert!(in_order(&ordered) && in_order(&gapped));
         ordered.give(&[snapshot_of(&all)], true);
         assert!(local_map(&gapped) == local_map(&ordered), "a settle changed a map that grew in order");

@@ -36,6 +36,7 @@ use live::Live;
 use proto::{Fleet, GlobalMap};
 
 use crate::merge::{MergeConfig, MergeError};
+pub use fleet_state::Member;
 pub use station::Station;
 pub use store::{Committed, StoreError};
 
@@ -93,15 +94,20 @@ pub enum StationError {
 /// Where the station stands: published on a watch channel after every event.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct StationProgress {
-    /// Keyframes held per robot.
+    /// Keyframes held per robot, over its sessions.
     pub keyframes: BTreeMap<u32, usize>,
-    /// Newest pose-graph revision accepted per robot (robots that sent none are absent).
+    /// Newest pose-graph revision accepted per robot, of its newest session (robots whose newest
+    /// session sent none are absent).
     pub pose_revisions: BTreeMap<u32, u64>,
+    /// Keyframes held per robot session.
+    pub sessions: BTreeMap<Member, usize>,
+    /// Newest pose-graph revision accepted per robot session (sessions that sent none are absent).
+    pub session_pose_revisions: BTreeMap<Member, u64>,
     /// Keyframes known to be missing (gaps below each robot's newest), over all robots.
     pub missing: usize,
     /// Payloads rejected since start.
     pub malformed: u64,
-    /// Keyframes that came again with different bytes (the first were kept).
+    /// Keyframes that came again in the same session with different bytes (the first were kept).
     pub conflicts: u64,
     /// Keyframes received through backfill requests.
     pub backfilled: u64,
@@ -163,9 +169,11 @@ impl StationProgress {
 pub struct StationSummary {
     /// The latest global map, if any.
     pub global_map: Option<GlobalMap>,
-    /// Keyframes held per robot.
+    /// Keyframes held per robot, over its sessions.
     pub keyframes: BTreeMap<u32, usize>,
-    /// Every robot's keyframes and newest poses as the station held them last (payloads shared).
+    /// Keyframes held per robot session.
+    pub sessions: BTreeMap<Member, usize>,
+    /// Every robot session's keyframes and newest poses as the station held them last (payloads shared).
     pub fleet: Vec<merge_job::RobotSnapshot>,
     /// Payloads rejected.
     pub malformed: u64,

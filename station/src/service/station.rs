@@ -20,7 +20,7 @@ use zenoh::sample::{Sample, SampleKind};
 
 use super::backfill::{Backfill, Ended, Want};
 use super::client::global_map_cloud;
-use super::fleet_state::{Basis, FleetState, Inserted, ReceivedKeyframe};
+use super::fleet_state::{Basis, FleetState, Inserted, Member, ReceivedKeyframe};
 use super::ingest::{self, Malformed};
 use super::live_view::StationView;
 use super::merge_job::{MapCloud, MergeOutcome, MergeWorker, snapshot};
@@ -137,7 +137,7 @@ struct WriterHandle {
 struct Reloaded {
     state: FleetState,
     latest: Option<Published>,
-    basis: BTreeMap<u32, Basis>,
+    basis: BTreeMap<Member, Basis>,
     /// Persisted records that no longer pass the checks (skipped).
     rejected: u64,
 }
@@ -151,20 +151,20 @@ struct Published {
 /// Rebuilds the state through the same checks and inserts as live samples.
 fn reload(fleet: &Fleet, persisted: Persisted) -> Reloaded {
     let mut out = Reloaded { basis: persisted.basis, ..Reloaded::default() };
-    for (robot, seq, bytes) in persisted.keyframes {
-        let origin = format!("{} keyframe {seq} of robot {robot}", store::FILE_NAME);
-        match ingest::keyframe(fleet, robot, &origin, &bytes) {
+    for (member, seq, bytes) in persisted.keyframes {
+        let origin = format!("{} keyframe {seq} of {member}", store::FILE_NAME);
+        match ingest::keyframe(fleet, member.robot, &origin, &bytes) {
             Ok(kf) => {
                 out.state.insert_keyframe(&kf);
             }
             Err(e) => reject(&mut out.rejected, &e),
         }
     }
-    for (robot, bytes) in persisted.posegraphs {
-        let origin = format!("{} pose graph of robot {robot}", store::FILE_NAME);
-        match ingest::poses(fleet, robot, &origin, &bytes) {
+    for (member, bytes) in persisted.posegraphs {
+        let origin = format!("{} pose graph of {member}", store::FILE_NAME);
+        match ingest::poses(fleet, member.robot, &origin, &bytes) {
             Ok(p) => {
-                out.state.apply_poses(p.robot, p.revision, p.poses);
+                out.state.apply_poses(p.member(), p.revision, p.poses);
             }
             Err(e) => reject(&mut out.rejected, &e),
         }
@@ -247,8 +247,8 @@ struct Counters {
     merges: u64,
     merge_ms: Vec<f64>,
     round_ms: Vec<f64>,
-    /// Per robot, the merge's bytes as of the last merge.
-    map_memory: BTreeMap<u32, u64>,
+    /// Per robot session, the merge's bytes as of the last merge.
+    map_memory: BTreeMap<Member, u64>,
 }
 
 /// Everything the loop owns.
@@ -382,33 +382,52 @@ impl Core {
     }
 
     fn insert(&mut self, kf: ReceivedKeyframe, origin: Origin) {
-        let (robot, seq, bytes) = (kf.robot, kf.seq, Arc::clone(&kf.bytes));
+        let (member, seq, bytes) = (kf.member(), kf.seq, Arc::clone(&kf.bytes));
+        let first = self.state.robot(member).is_none();
         match self.state.insert_keyframe(&kf) {
             Inserted::New => {
                 if let Some(view) = &self.view {
-                    view.keyframe(&kf);
+                    view.keyframe(&kf, &self.state);
                 }
-                self.persist(Write::Keyframe { robot, seq, bytes });
+                self.persist(Write::Keyframe { member, seq, bytes });
                 self.queue.changed(Instant::now());
+                if first {
+                    self.new_session(member, origin);
+                }
                 if origin == Origin::Backfill {
                     self.counters.backfilled += 1;
-                } else if self.state.robot(robot).is_some_and(|r| r.missing_count() > 0) {
-                    self.backfill.want(robot, Want::Gaps);
+                } else if self.state.robot(member).is_some_and(|r| r.missing_count() > 0) {
+                    self.backfill.want(member, Want::Gaps);
                 }
             }
-            Inserted::Duplicate => debug!("robot {robot} keyframe {seq} again"),
-            Inserted::Conflict => warn!("robot {robot} sent other bytes for keyframe {seq}: keeping the first"),
+            Inserted::Duplicate => debug!("{member} keyframe {seq} again"),
+            Inserted::Conflict => warn!("{member} sent other bytes for keyframe {seq}: keeping the first"),
+        }
+    }
+
+    /// A robot session seen for the first time. One that came through backfill (the reply to which
+    /// session the robot is in now) is asked for in full. The session before it ended without a
+    /// word, perhaps in a crash: anything it published after what the station holds of it is asked
+    /// for (a robot that keeps its keyframes on disk still has them).
+    fn new_session(&mut self, member: Member, origin: Origin) {
+        if origin == Origin::Backfill {
+            self.backfill.want(member, Want::Everything);
+        }
+        if let Some(previous) = self.state.previous_session(member) {
+            info!("{member}: a new session of robot {}, after {previous}", member.robot);
+            self.backfill.want(previous, Want::Everything);
         }
     }
 
     fn on_poses(&mut self, robot: u32, key: &str, bytes: &[u8]) {
         match ingest::poses(&self.fleet, robot, key, bytes) {
             Ok(p) => {
-                if self.state.apply_poses(p.robot, p.revision, p.poses) {
-                    self.persist(Write::PoseGraph { robot, bytes: Arc::from(bytes) });
+                let member = p.member();
+                if self.state.apply_poses(member, p.revision, p.poses) {
+                    self.persist(Write::PoseGraph { member, bytes: Arc::from(bytes) });
                     self.queue.changed(Instant::now());
                     if let Some(view) = &mut self.view {
-                        view.poses(robot, p.loops, &self.state);
+                        view.poses(member, p.loops, &self.state);
                     }
                 }
             }
@@ -429,7 +448,7 @@ impl Core {
         match sample.kind() {
             SampleKind::Put => {
                 info!("robot {robot} is alive");
-                self.backfill.want(robot, Want::Everything);
+                self.backfill.appeared(robot, &self.state);
             }
             SampleKind::Delete => info!("robot {robot} is gone"),
         }
@@ -464,7 +483,12 @@ impl Core {
     /// Sends the backfill requests that are due, each from its own task.
     fn send_backfills(&mut self) {
         for (robot, request) in self.backfill.requests(&self.state, Instant::now()) {
-            debug!("asking robot {robot} for {} keyframes, from {:?}", request.seqs.len(), request.from_seq);
+            debug!(
+                "asking robot {robot} for {} keyframes, from {:?}, of session {:?}",
+                request.seqs.len(),
+                request.from_seq,
+                request.session
+            );
             self.counters.backfill_requests += 1;
             let key = keyexpr::keyframe_store(&self.fleet, robot);
             // A robot that (re)appeared may have optimised its graph while this station was not
@@ -526,7 +550,11 @@ impl Core {
         self.counters.map_memory = memory;
         let ms = cloud::stopwatch::millis(elapsed);
         let merged = map.robots.iter().filter(|r| r.status == proto::MergeStatus::Merged as i32).count();
-        info!("global map revision {}: {merged} of {} robots merged ({ms:.0} ms)", map.revision, map.robots.len());
+        info!(
+            "global map revision {}: {merged} of {} robot sessions merged ({ms:.0} ms)",
+            map.revision,
+            map.robots.len()
+        );
         self.counters.merges += 1;
         self.counters.merge_ms.push(ms);
         self.counters.round_ms.extend(round.map(cloud::stopwatch::millis));
@@ -548,7 +576,7 @@ impl Core {
     async fn publish_status(&self, publisher: &Publisher<'static>) {
         let status = StationStatus {
             fleet: self.fleet.to_string(),
-            robots: self.state.robots().keys().copied().collect(),
+            robots: self.state.keyframe_counts().into_keys().collect(),
             keyframes: self.state.total_keyframes() as u64,
             merge_queue_depth: self.queue.depth(),
             last_merge_ms: self.counters.merge_ms.last().copied().unwrap_or(0.0),
@@ -561,6 +589,17 @@ impl Core {
                 .memory()
                 .into_iter()
                 .map(|(robot, m)| proto::RobotMemory { robot, keyframe_bytes: m.keyframes, map_bytes: m.map })
+                .collect(),
+            sessions: self
+                .state
+                .robots()
+                .iter()
+                .map(|(m, r)| proto::SessionKeyframes {
+                    robot: m.robot,
+                    session: m.session,
+                    keyframes: r.keyframes().len() as u64,
+                    conflicts: r.conflicts(),
+                })
                 .collect(),
         };
         if let Some(view) = &self.view {
@@ -596,28 +635,39 @@ impl Core {
         self.latest.as_ref().map_or(0, |p| p.map.revision)
     }
 
-    /// What the station holds per robot: its keyframes, and the merge's share as of the last merge.
+    /// What the station holds per robot (over its sessions): its keyframes, and the merge's share
+    /// as of the last merge.
     fn memory(&self) -> BTreeMap<u32, RobotMemory> {
-        self.state
-            .robots()
-            .iter()
-            .map(|(&robot, r)| {
-                let map = self.counters.map_memory.get(&robot).copied().unwrap_or(0);
-                (robot, RobotMemory { keyframes: r.keyframe_bytes(), map })
-            })
-            .collect()
+        let mut memory = BTreeMap::<u32, RobotMemory>::new();
+        for (member, r) in self.state.robots() {
+            let m = memory.entry(member.robot).or_default();
+            m.keyframes += r.keyframe_bytes();
+            m.map += self.counters.map_memory.get(member).copied().unwrap_or(0);
+        }
+        memory
     }
 
     fn report_progress(&self) {
         let s = &self.state;
         let c = &self.counters;
         let keyframes = s.keyframe_counts();
-        let pose_revisions = s.robots().iter().filter_map(|(&r, state)| Some((r, state.pose_revision()?))).collect();
+        let sessions = s.session_counts();
+        let session_pose_revisions: BTreeMap<Member, u64> =
+            s.robots().iter().filter_map(|(&m, state)| Some((m, state.pose_revision()?))).collect();
+        // A robot's newest session's: revisions count per session.
+        let mut pose_revisions = BTreeMap::new();
+        for (m, &revision) in &session_pose_revisions {
+            if s.newest_session(m.robot) == Some(*m) {
+                pose_revisions.insert(m.robot, revision);
+            }
+        }
         let missing = s.robots().values().map(|r| r.missing_count() as usize).sum();
         self.progress.send_if_modified(|p| {
             let next = StationProgress {
                 keyframes,
                 pose_revisions,
+                sessions,
+                session_pose_revisions,
                 missing,
                 malformed: c.malformed,
                 conflicts: s.total_conflicts(),
@@ -649,6 +699,7 @@ impl Core {
         StationSummary {
             global_map: self.latest.map(|p| p.map),
             keyframes: self.state.keyframe_counts(),
+            sessions: self.state.session_counts(),
             fleet: super::merge_job::snapshot(&self.state),
             malformed: self.counters.malformed,
             conflicts: self.state.total_conflicts(),

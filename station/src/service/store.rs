@@ -1,5 +1,8 @@
 //! Persistence in an embedded redb database (`DIR/station.redb`): every keyframe as received, each
-//! robot's latest pose-graph update, the latest global map and what it was built from.
+//! robot session's latest pose-graph update, the latest global map and what it was built from.
+//!
+//! Rows are keyed by robot session. A database written before sessions (tables keyed by robot) is
+//! read as session 0 of each robot; new rows go to the session tables.
 //!
 //! Writes go through a writer thread that commits in batches (every [`BATCH_PERIOD`] or
 //! [`BATCH_ITEMS`] writes), so a `kill -9` loses at most the last batch, which the backfill from the
@@ -14,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use redb::{Database, DatabaseError, ReadableDatabase, ReadableTable, TableDefinition};
 
-use super::fleet_state::Basis;
+use super::fleet_state::{Basis, Member};
 
 /// The database file's name inside the data directory.
 pub const FILE_NAME: &str = "station.redb";
@@ -29,11 +32,17 @@ pub const BATCH_ITEMS: usize = 256;
 /// the file before calling it taken.
 const OPEN_PATIENCE: Duration = Duration::from_secs(5);
 
-const KEYFRAMES: TableDefinition<(u32, u64), &[u8]> = TableDefinition::new("keyframes");
-const POSEGRAPHS: TableDefinition<u32, &[u8]> = TableDefinition::new("posegraphs");
+/// (robot, session, seq): Keyframe bytes.
+const KEYFRAMES: TableDefinition<(u32, u64, u64), &[u8]> = TableDefinition::new("session_keyframes");
+/// (robot, session): PoseGraphUpdate bytes.
+const POSEGRAPHS: TableDefinition<(u32, u64), &[u8]> = TableDefinition::new("session_posegraphs");
 const GLOBAL_MAP: TableDefinition<&str, &[u8]> = TableDefinition::new("global_map");
-/// Per robot: (keyframes, pose revision + 1 or 0) the persisted global map was built from.
-const MAP_BASIS: TableDefinition<u32, (u64, u64)> = TableDefinition::new("map_basis");
+/// Per robot session: (keyframes, pose revision + 1 or 0) the persisted global map was built from.
+const MAP_BASIS: TableDefinition<(u32, u64), (u64, u64)> = TableDefinition::new("session_map_basis");
+/// The tables before sessions, keyed by robot: read as session 0.
+const LEGACY_KEYFRAMES: TableDefinition<(u32, u64), &[u8]> = TableDefinition::new("keyframes");
+const LEGACY_POSEGRAPHS: TableDefinition<u32, &[u8]> = TableDefinition::new("posegraphs");
+const LEGACY_MAP_BASIS: TableDefinition<u32, (u64, u64)> = TableDefinition::new("map_basis");
 const LATEST: &str = "latest";
 
 /// The database could not be opened, read or written.
@@ -68,17 +77,17 @@ pub enum StoreError {
 pub enum Write {
     /// A keyframe as received.
     Keyframe {
-        /// Robot id.
-        robot: u32,
+        /// Robot session.
+        member: Member,
         /// Sequence number.
         seq: u64,
         /// The protobuf bytes.
         bytes: Arc<[u8]>,
     },
-    /// A robot's latest pose-graph update as received.
+    /// A robot session's latest pose-graph update as received.
     PoseGraph {
-        /// Robot id.
-        robot: u32,
+        /// Robot session.
+        member: Member,
         /// The protobuf bytes.
         bytes: Arc<[u8]>,
     },
@@ -88,22 +97,22 @@ pub enum Write {
         revision: u64,
         /// The protobuf bytes as published.
         bytes: Arc<[u8]>,
-        /// Per robot, the basis of its map.
-        basis: BTreeMap<u32, Basis>,
+        /// Per robot session, the basis of its map.
+        basis: BTreeMap<Member, Basis>,
     },
 }
 
 /// Everything the database holds.
 #[derive(Clone, Debug, Default)]
 pub struct Persisted {
-    /// (robot, seq, Keyframe bytes), in key order.
-    pub keyframes: Vec<(u32, u64, Vec<u8>)>,
-    /// (robot, PoseGraphUpdate bytes).
-    pub posegraphs: Vec<(u32, Vec<u8>)>,
+    /// (robot session, seq, Keyframe bytes), in key order.
+    pub keyframes: Vec<(Member, u64, Vec<u8>)>,
+    /// (robot session, PoseGraphUpdate bytes).
+    pub posegraphs: Vec<(Member, Vec<u8>)>,
     /// The latest GlobalMap bytes.
     pub global_map: Option<Vec<u8>>,
     /// What that map was built from.
-    pub basis: BTreeMap<u32, Basis>,
+    pub basis: BTreeMap<Member, Basis>,
 }
 
 /// The open database.
@@ -134,6 +143,9 @@ impl Store {
             txn.open_table(POSEGRAPHS)?;
             txn.open_table(GLOBAL_MAP)?;
             txn.open_table(MAP_BASIS)?;
+            txn.open_table(LEGACY_KEYFRAMES)?;
+            txn.open_table(LEGACY_POSEGRAPHS)?;
+            txn.open_table(LEGACY_MAP_BASIS)?;
             Ok(())
         })
     }
@@ -146,20 +158,35 @@ impl Store {
     fn read(&self) -> Result<Persisted, redb::Error> {
         let txn = self.db.begin_read()?;
         let mut out = Persisted::default();
-        for row in txn.open_table(KEYFRAMES)?.iter()? {
+        for row in txn.open_table(LEGACY_KEYFRAMES)?.iter()? {
             let (k, v) = row?;
             let (robot, seq) = k.value();
-            out.keyframes.push((robot, seq, v.value().to_vec()));
+            out.keyframes.push((Member::from(robot), seq, v.value().to_vec()));
+        }
+        for row in txn.open_table(KEYFRAMES)?.iter()? {
+            let (k, v) = row?;
+            let (robot, session, seq) = k.value();
+            out.keyframes.push((Member::new(robot, session), seq, v.value().to_vec()));
+        }
+        for row in txn.open_table(LEGACY_POSEGRAPHS)?.iter()? {
+            let (k, v) = row?;
+            out.posegraphs.push((Member::from(k.value()), v.value().to_vec()));
         }
         for row in txn.open_table(POSEGRAPHS)?.iter()? {
             let (k, v) = row?;
-            out.posegraphs.push((k.value(), v.value().to_vec()));
+            let (robot, session) = k.value();
+            out.posegraphs.push((Member::new(robot, session), v.value().to_vec()));
         }
         out.global_map = txn.open_table(GLOBAL_MAP)?.get(LATEST)?.map(|v| v.value().to_vec());
+        let basis = |(keyframes, pose): (u64, u64)| Basis { keyframes, pose_revision: pose.checked_sub(1) };
+        for row in txn.open_table(LEGACY_MAP_BASIS)?.iter()? {
+            let (k, v) = row?;
+            out.basis.insert(Member::from(k.value()), basis(v.value()));
+        }
         for row in txn.open_table(MAP_BASIS)?.iter()? {
             let (k, v) = row?;
-            let (keyframes, pose) = v.value();
-            out.basis.insert(k.value(), Basis { keyframes, pose_revision: pose.checked_sub(1) });
+            let (robot, session) = k.value();
+            out.basis.insert(Member::new(robot, session), basis(v.value()));
         }
         Ok(out)
     }
@@ -171,19 +198,22 @@ impl Store {
             let mut posegraphs = txn.open_table(POSEGRAPHS)?;
             let mut global_map = txn.open_table(GLOBAL_MAP)?;
             let mut map_basis = txn.open_table(MAP_BASIS)?;
+            let mut legacy_basis = txn.open_table(LEGACY_MAP_BASIS)?;
             for w in batch {
                 match w {
-                    Write::Keyframe { robot, seq, bytes } => {
-                        keyframes.insert((*robot, *seq), bytes.as_ref())?;
+                    Write::Keyframe { member, seq, bytes } => {
+                        keyframes.insert((member.robot, member.session, *seq), bytes.as_ref())?;
                     }
-                    Write::PoseGraph { robot, bytes } => {
-                        posegraphs.insert(*robot, bytes.as_ref())?;
+                    Write::PoseGraph { member, bytes } => {
+                        posegraphs.insert((member.robot, member.session), bytes.as_ref())?;
                     }
                     Write::GlobalMap { bytes, basis, .. } => {
                         global_map.insert(LATEST, bytes.as_ref())?;
                         map_basis.retain(|_, _| false)?;
-                        for (robot, b) in basis {
-                            map_basis.insert(*robot, (b.keyframes, b.pose_revision.map_or(0, |r| r + 1)))?;
+                        legacy_basis.retain(|_, _| false)?;
+                        for (m, b) in basis {
+                            let pose = b.pose_revision.map_or(0, |r| r + 1);
+                            map_basis.insert((m.robot, m.session), (b.keyframes, pose))?;
                         }
                     }
                 }

@@ -151,7 +151,7 @@ fn keyframes(config: &Path, fleet: &str, robot: &str) -> Result<(), Failure> {
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
     runtime.block_on(async {
         let session = bus::Network::File(config.to_owned()).open().await?;
-        let request = KeyframeRequest { seqs: vec![], from_seq: Some(0), limit: None }.encode_to_vec();
+        let request = KeyframeRequest { seqs: vec![], from_seq: Some(0), limit: None, session: None }.encode_to_vec();
         let replies = session
             .get(keyexpr::keyframe_store(&fleet, robot))
             .payload(request)
