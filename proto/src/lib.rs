@@ -7,6 +7,7 @@
 pub mod codec;
 pub mod keyexpr;
 mod pose;
+pub mod ros2;
 mod scan_context;
 mod timestamp;
 
