@@ -11,6 +11,8 @@ use std::net::{Ipv4Addr, TcpListener};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+pub mod ros2;
+
 use zenoh::Session;
 
 /// Why a session could not be configured or opened.

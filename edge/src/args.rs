@@ -44,8 +44,9 @@ impl From<&TuningArgs> for Tuning {
 #[derive(clap::Args, Debug)]
 pub struct SourceArgs {
     /// The source: a directory of scans, a .bag, .mcap or .pcap/.pcapng file (pcap:FILE whatever
-    /// its name), udp:ADDRESS:PORT for a live sensor, or sim:SCENARIO:ROBOT.
-    pub input: SourceSpec,
+    /// its name), udp:ADDRESS:PORT for a live sensor, ros2:/TOPIC for a ROS 2 driver's
+    /// PointCloud2 topic over rmw_zenoh, or sim:SCENARIO:ROBOT.
+    input: SourceSpec,
     /// Topic of sensor_msgs/PointCloud2 in a bag or MCAP file [default: the only one].
     #[arg(long)]
     pub topic: Option<String>,
@@ -53,9 +54,20 @@ pub struct SourceArgs {
     pub packets: PacketArgs,
     #[command(flatten)]
     pub sim: SimArgs,
+    /// The ROS domain of a ros2: source.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub ros2_domain: u32,
+    /// How a ros2: source reaches its publisher [default: a peer connecting to tcp/127.0.0.1:7447].
+    #[command(flatten)]
+    pub network: bus::NetworkArgs,
 }
 
 impl SourceArgs {
+    /// The source, a ros2: source on the network and domain given.
+    pub fn input(&self) -> SourceSpec {
+        self.input.clone().on_network(self.network.joining(bus::DEFAULT_PORT), self.ros2_domain)
+    }
+
     /// How to read a recording or packets, as the user said.
     pub fn reading(&self) -> RecordingOptions {
         RecordingOptions { topic: self.topic.clone(), packets: self.packets.options(), ..RecordingOptions::default() }

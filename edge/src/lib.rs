@@ -10,5 +10,6 @@ pub mod node;
 pub mod odometry;
 pub mod packets;
 pub mod recording;
+pub mod ros2_topic;
 pub mod source;
 pub mod wire;

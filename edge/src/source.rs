@@ -1,9 +1,11 @@
 //! Where scans come from: the built-in simulator (`sim:SCENARIO:ROBOT`), a recording (a directory
-//! of scans, a ROS 1 bag, an MCAP file, a packet capture) or a live sensor (`udp:ADDRESS:PORT`),
-//! behind one iterator.
+//! of scans, a ROS 1 bag, an MCAP file, a packet capture), a live sensor (`udp:ADDRESS:PORT`) or a
+//! ROS 2 driver's PointCloud2 topic over rmw_zenoh (`ros2:/TOPIC`), behind one iterator.
 
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::RecvTimeoutError;
 use std::time::Duration;
 
@@ -12,8 +14,13 @@ use nalgebra::Isometry3;
 use serde::Serialize;
 use sim::{Scenario, SimConfig, SimError, Simulator, UnknownScenario};
 
+use bus::Network;
+use proto::ros2::keys::TopicName;
+
 use crate::live_sensor::LiveSensor;
-use crate::recording::{self, RecordingError, RecordingOptions};
+use crate::recording::pointcloud2::MessageError;
+use crate::recording::{self, ChannelDeriver, RecordingError, RecordingOptions};
+use crate::ros2_topic::{Link, Ros2Topic, Ros2TopicError};
 
 /// A scan source named on the command line.
 #[derive(Clone, Debug, PartialEq)]
@@ -30,6 +37,27 @@ pub enum SourceSpec {
     Recording(PathBuf),
     /// `udp:ADDR:PORT`: a live sensor's packets, received on that local address.
     Udp(std::net::SocketAddr),
+    /// `ros2:/TOPIC`: a sensor_msgs/PointCloud2 topic published over rmw_zenoh.
+    Ros2 {
+        /// The topic.
+        topic: TopicName,
+        /// Its ROS domain (0 unless set with [`SourceSpec::on_network`]).
+        domain: u32,
+        /// How a source of its own reaches the publisher (a peer connecting to the default port of
+        /// 127.0.0.1 unless set with [`SourceSpec::on_network`]); a robot's node reads the topic
+        /// on its own session instead.
+        network: Network,
+    },
+}
+
+impl SourceSpec {
+    /// A `ros2:` source in ROS domain `domain`, reached through `network`; other sources as they are.
+    pub fn on_network(self, network: Network, domain: u32) -> Self {
+        match self {
+            SourceSpec::Ros2 { topic, .. } => SourceSpec::Ros2 { topic, domain, network },
+            other => other,
+        }
+    }
 }
 
 /// A source specification that cannot be understood.
@@ -49,6 +77,7 @@ impl std::fmt::Display for SourceSpec {
             SourceSpec::Sim { scenario, robot } => write!(f, "sim:{scenario}:{robot}"),
             SourceSpec::Recording(path) => write!(f, "{}", path.display()),
             SourceSpec::Udp(address) => write!(f, "udp:{address}"),
+            SourceSpec::Ros2 { topic, .. } => write!(f, "ros2:{topic}"),
         }
     }
 }
@@ -67,6 +96,11 @@ impl FromStr for SourceSpec {
                     "expected udp:ADDRESS:PORT, e.g. udp:192.168.1.100:2368 (the local address the sensor sends to)",
                 )
             });
+        }
+        if let Some(topic) = s.strip_prefix("ros2:") {
+            let topic = TopicName::new(topic).map_err(|e| invalid(&format!("expected ros2:/TOPIC; {e}")))?;
+            let network = Network::loopback_ports(&[], &[bus::DEFAULT_PORT]);
+            return Ok(SourceSpec::Ros2 { topic, domain: 0, network });
         }
         let Some(rest) = s.strip_prefix("sim:") else { return Ok(SourceSpec::Recording(PathBuf::from(s))) };
         let (scenario, robot) = match rest.split_once(':') {
@@ -180,6 +214,19 @@ pub enum SourceError {
         /// Why.
         reason: String,
     },
+    /// A ROS 2 topic could not be subscribed to.
+    #[error(transparent)]
+    Ros2(#[from] Ros2TopicError),
+    /// A message of a ROS 2 topic is not a PointCloud2 the odometry can read (skipped).
+    #[error("ros2:{topic}: message {index}: {reason}")]
+    Ros2Message {
+        /// The topic.
+        topic: String,
+        /// Its rank among the topic's messages.
+        index: usize,
+        /// Why.
+        reason: MessageError,
+    },
 }
 
 impl SourceError {
@@ -187,6 +234,7 @@ impl SourceError {
     pub fn is_fatal(&self) -> bool {
         match self {
             SourceError::Recording(e) => e.is_fatal(),
+            SourceError::Ros2Message { .. } => false,
             _ => true,
         }
     }
@@ -199,17 +247,59 @@ pub struct Source {
     pub len: Option<usize>,
     limit: Option<usize>,
     given: usize,
+    /// Set when the source must end early (Ctrl-C, a node shutting down).
+    interrupt: Option<Arc<AtomicBool>>,
 }
 
 enum Inner {
     Sim { sim: Box<Simulator>, next: usize },
     Recording(Box<recording::Recording>),
     Live { sensor: LiveSensor, next: usize },
+    Ros2(Box<Ros2Scans>),
+}
+
+/// A ROS 2 topic's messages made scans as a recording's are.
+struct Ros2Scans {
+    topic: Ros2Topic,
+    next: usize,
+    options: RecordingOptions,
+    channels: ChannelDeriver,
 }
 
 /// How long a live sensor may be silent before it is warned about (it is waited for still: a
 /// sensor that restarts comes back).
 const SILENCE_WARNING: Duration = Duration::from_secs(5);
+
+/// How often a wait for a live scan looks whether the source was interrupted.
+const POLL: Duration = Duration::from_millis(200);
+
+/// Waits for the next item of a live source through `poll` (which waits up to the given time),
+/// warning about `what` every [`SILENCE_WARNING`] of silence; `None` when `poll` says the source
+/// ended, `done` says no more is to come, or `interrupt` is set.
+fn wait_live<T>(
+    what: &str,
+    interrupt: Option<&AtomicBool>,
+    mut poll: impl FnMut(Duration) -> Result<T, RecvTimeoutError>,
+    done: impl Fn() -> bool,
+) -> Option<T> {
+    let mut silent = Duration::ZERO;
+    loop {
+        if interrupt.is_some_and(|i| i.load(Ordering::Relaxed)) {
+            return None;
+        }
+        match poll(POLL) {
+            Ok(item) => return Some(item),
+            Err(RecvTimeoutError::Timeout) if done() => return None,
+            Err(RecvTimeoutError::Timeout) => {
+                silent += POLL;
+                if silent.as_millis().is_multiple_of(SILENCE_WARNING.as_millis()) {
+                    tracing::warn!("no scan from {what} for {} s", silent.as_secs());
+                }
+            }
+            Err(RecvTimeoutError::Disconnected) => return None,
+        }
+    }
+}
 
 impl Source {
     /// Opens a source; `frames` caps the number of scans, `sim` configures simulated sensors and
@@ -230,6 +320,7 @@ impl Source {
                     len: Some(len),
                     limit: Some(len),
                     given: 0,
+                    interrupt: None,
                 })
             }
             SourceSpec::Recording(path) => {
@@ -238,20 +329,51 @@ impl Source {
                     (Some(f), Some(n)) => Some(f.min(n)),
                     (f, n) => f.or(n),
                 };
-                Ok(Source { inner: Inner::Recording(Box::new(rec)), len, limit: frames, given: 0 })
+                Ok(Source { inner: Inner::Recording(Box::new(rec)), len, limit: frames, given: 0, interrupt: None })
             }
             SourceSpec::Udp(address) => {
                 let fail = |e: std::io::Error| SourceError::Live { address: *address, reason: e.to_string() };
                 let assembler = recording::assembler_for(None, &options.packets)
                     .map_err(|e| SourceError::Live { address: *address, reason: e.to_string() })?;
                 let sensor = LiveSensor::start(*address, assembler).map_err(fail)?;
-                Ok(Source { inner: Inner::Live { sensor, next: 0 }, len: frames, limit: frames, given: 0 })
+                Ok(Source {
+                    inner: Inner::Live { sensor, next: 0 },
+                    len: frames,
+                    limit: frames,
+                    given: 0,
+                    interrupt: None,
+                })
+            }
+            SourceSpec::Ros2 { topic, domain, network } => {
+                Source::ros2(Link::Join(network.clone()), *domain, topic, frames, options)
             }
         }
     }
 }
 
 impl Source {
+    /// Opens `ros2:TOPIC` of ROS domain `domain` on `link`'s session (a node's own session, where
+    /// [`Source::open`] joins the spec's network); `frames` caps the number of scans.
+    pub fn ros2(
+        link: Link,
+        domain: u32,
+        topic: &TopicName,
+        frames: Option<usize>,
+        options: &RecordingOptions,
+    ) -> Result<Self, SourceError> {
+        let topic = Ros2Topic::start(link, domain, topic)?;
+        let channels = ChannelDeriver::new(options.clone());
+        let scans = Ros2Scans { topic, next: 0, options: options.clone(), channels };
+        Ok(Source { inner: Inner::Ros2(Box::new(scans)), len: frames, limit: frames, given: 0, interrupt: None })
+    }
+
+    /// Ends the source as soon as `interrupt` is set: before the next scan, or while waiting for a
+    /// live one.
+    pub fn until(mut self, interrupt: Arc<AtomicBool>) -> Self {
+        self.interrupt = Some(interrupt);
+        self
+    }
+
     /// Leaves out the first `scans` scans (a run that starts where another stopped): the
     /// simulator starts at that sweep, a recording is read past them, a live sensor's are dropped
     /// as they come. `len` and the limit count from there.
@@ -268,7 +390,14 @@ impl Source {
             Inner::Recording(rec) => rec.by_ref().take(scans).for_each(drop),
             Inner::Live { sensor, next } => {
                 for _ in 0..scans {
-                    if live_scan(sensor, next, None).is_none() {
+                    if live_scan(sensor, next, None, self.interrupt.as_deref()).is_none() {
+                        break;
+                    }
+                }
+            }
+            Inner::Ros2(ros2) => {
+                for _ in 0..scans {
+                    if ros2.next_scan(None, self.interrupt.as_deref()).is_none() {
                         break;
                     }
                 }
@@ -299,7 +428,9 @@ impl Iterator for Source {
     type Item = Result<SourceScan, SourceError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        if self.limit.is_some_and(|l| self.given >= l) {
+        if self.limit.is_some_and(|l| self.given >= l)
+            || self.interrupt.as_ref().is_some_and(|i| i.load(Ordering::Relaxed))
+        {
             return None;
         }
         let item = match &mut self.inner {
@@ -320,7 +451,8 @@ impl Iterator for Source {
                     dropped_before: 0,
                 })
                 .map_err(SourceError::from),
-            Inner::Live { sensor, next } => Ok(live_scan(sensor, next, self.limit)?),
+            Inner::Live { sensor, next } => Ok(live_scan(sensor, next, self.limit, self.interrupt.as_deref())?),
+            Inner::Ros2(ros2) => ros2.next_scan(self.limit, self.interrupt.as_deref())?,
         };
         // A live sensor's dropped scans count towards the limit: it is the sensor's scans.
         self.given += item.as_ref().map_or(0, |scan| 1 + scan.dropped_before);
@@ -328,21 +460,18 @@ impl Iterator for Source {
     }
 }
 
-/// The next scan of a live sensor, waiting for it; `None` when its receiving thread ended, or
-/// when the sensor went silent after sending `limit` scans (the last of which were dropped).
-fn live_scan(sensor: &LiveSensor, next: &mut usize, limit: Option<usize>) -> Option<SourceScan> {
-    let mut silent = Duration::ZERO;
-    let live = loop {
-        match sensor.next_rotation(SILENCE_WARNING) {
-            Ok(live) => break live,
-            Err(RecvTimeoutError::Timeout) if limit.is_some_and(|l| sensor.counts().rotations >= l) => return None,
-            Err(RecvTimeoutError::Timeout) => {
-                silent += SILENCE_WARNING;
-                tracing::warn!("no scan from udp:{} for {} s", sensor.address(), silent.as_secs());
-            }
-            Err(RecvTimeoutError::Disconnected) => return None,
-        }
-    };
+/// The next scan of a live sensor, waiting for it; `None` when its receiving thread ended, when
+/// the sensor went silent after sending `limit` scans (the last of which were dropped), or when
+/// interrupted.
+fn live_scan(
+    sensor: &LiveSensor,
+    next: &mut usize,
+    limit: Option<usize>,
+    interrupt: Option<&AtomicBool>,
+) -> Option<SourceScan> {
+    let what = format!("udp:{}", sensor.address());
+    let done = || limit.is_some_and(|l| sensor.counts().rotations >= l);
+    let live = wait_live(&what, interrupt, |t| sensor.next_rotation(t), done)?;
     let index = *next;
     *next += 1;
     Some(SourceScan {
@@ -354,6 +483,40 @@ fn live_scan(sensor: &LiveSensor, next: &mut usize, limit: Option<usize>) -> Opt
         partial: live.rotation.partial,
         dropped_before: live.dropped_before,
     })
+}
+
+impl Ros2Scans {
+    /// The next message made a scan, waiting for it; `None` when the subscription ended, when the
+    /// topic went silent after sending `limit` scans (the last of which were dropped), or when
+    /// interrupted.
+    fn next_scan(
+        &mut self,
+        limit: Option<usize>,
+        interrupt: Option<&AtomicBool>,
+    ) -> Option<Result<SourceScan, SourceError>> {
+        let what = format!("ros2:{}", self.topic.topic());
+        let topic = &self.topic;
+        let done = || limit.is_some_and(|l| topic.counts().received >= l);
+        let message = wait_live(&what, interrupt, |t| topic.next_message(t), done)?;
+        // The dropped scans had their places on the topic.
+        self.next += message.dropped_before;
+        let index = self.next;
+        self.next += 1;
+        let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64());
+        let scan = recording::cdr_scan(&message.payload, index, now, &self.options, &mut self.channels);
+        Some(match scan {
+            Ok(scan) => Ok(SourceScan {
+                cloud: scan.cloud,
+                stamp: scan.stamp,
+                index,
+                ground_truth: None,
+                gaps: 0,
+                partial: false,
+                dropped_before: message.dropped_before,
+            }),
+            Err(reason) => Err(SourceError::Ros2Message { topic: self.topic.topic().to_string(), index, reason }),
+        })
+    }
 }
 
 #[cfg(test)]

@@ -27,7 +27,8 @@ pub struct ConvertArgs {
 /// `emr-edge convert`.
 pub fn convert(args: ConvertArgs) -> Result<()> {
     let reading = args.source.reading();
-    let summary = match &args.source.input {
+    let input = args.source.input();
+    let summary = match &input {
         SourceSpec::Sim { scenario, robot } => {
             return super::sim::convert(scenario, *robot, args.start_at, args.frames, &args.out);
         }
@@ -35,14 +36,15 @@ pub fn convert(args: ConvertArgs) -> Result<()> {
             let scans = recording::open(path, &reading)?.skip(args.start_at).take(args.frames.unwrap_or(usize::MAX));
             write(scans, &args)?
         }
-        SourceSpec::Udp(address) => {
+        SourceSpec::Udp(_) | SourceSpec::Ros2 { .. } => {
             if args.frames.is_none() {
-                bail!("udp:{address} streams without end: say how many scans to convert with --frames N");
+                bail!("{input} streams without end: say how many scans to convert with --frames N");
             }
-            let source = Source::open(&args.source.input, args.frames, &args.source.sim.config(), &reading)?
-                .starting_at(args.start_at);
-            // A live source yields no errors: a packet that does not decode is counted in its scan.
-            let scans = source.filter_map(Result::ok).map(|s| {
+            let source =
+                Source::open(&input, args.frames, &args.source.sim.config(), &reading)?.starting_at(args.start_at);
+            // A live sensor's undecodable packets are counted in its scans; a topic's undecodable
+            // message is skipped with a warning.
+            let scans = source.filter_map(|s| s.map_err(|e| tracing::warn!("skipped a scan: {e}")).ok()).map(|s| {
                 Ok::<_, RecordingError>(Scan {
                     cloud: s.cloud,
                     stamp: s.stamp,

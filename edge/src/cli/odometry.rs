@@ -2,10 +2,12 @@
 
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Result;
 use edge::live_view::EdgeView;
 use edge::odometry::pipeline::{OdometryPipeline, Tuning};
+use edge::source::SourceSpec;
 use live::Live;
 
 use super::{SourceArgs, TuningArgs, progress_bar};
@@ -52,9 +54,13 @@ pub fn odometry(args: OdometryArgs) -> Result<()> {
         return Ok(());
     }
     let sim = args.source.sim.config();
-    let pipeline =
-        OdometryPipeline::new(&args.source.input, args.source.reading(), args.max_frames, config, &sim, &args.out)?
-            .with_loops(!args.no_loops);
+    let input = args.source.input();
+    let mut pipeline = OdometryPipeline::new(&input, args.source.reading(), args.max_frames, config, &sim, &args.out)?
+        .with_loops(!args.no_loops);
+    if matches!(input, SourceSpec::Udp(_) | SourceSpec::Ros2 { .. }) {
+        // A live source has no end of its own: Ctrl-C ends it, and what was read is written.
+        pipeline = pipeline.until(interrupt_on_signal()?);
+    }
     let live = Arc::new(Live::new());
     if let Some(path) = &args.record {
         live.record_file(path)?;
@@ -72,4 +78,18 @@ pub fn odometry(args: OdometryArgs) -> Result<()> {
     live.close()?;
     println!("{}", report?.to_json()?);
     Ok(())
+}
+
+/// A flag set on SIGINT (Ctrl-C) or SIGTERM, by a thread of its own.
+fn interrupt_on_signal() -> Result<Arc<AtomicBool>> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    let signal = runtime.block_on(async { bus::shutdown_signal() })?;
+    let set = flag.clone();
+    std::thread::Builder::new().name("signals".into()).spawn(move || {
+        runtime.block_on(signal);
+        tracing::info!("interrupted: ending the source, writing what was read");
+        set.store(true, Ordering::Relaxed);
+    })?;
+    Ok(flag)
 }

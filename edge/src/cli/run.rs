@@ -26,7 +26,9 @@ pub struct RunArgs {
     #[arg(long)]
     robot: Option<u32>,
     /// The source: a directory of scans, a .bag, .mcap or .pcap/.pcapng file (pcap:FILE whatever
-    /// its name), udp:ADDRESS:PORT for a live sensor, or sim:SCENARIO:ROBOT.
+    /// its name), udp:ADDRESS:PORT for a live sensor, ros2:/TOPIC for a ROS 2 driver's PointCloud2
+    /// topic over rmw_zenoh (read on the robot's zenoh session: the driver's router or peer must
+    /// be reachable through --connect, --listen or --zenoh), or sim:SCENARIO:ROBOT.
     #[arg(long, value_name = "INPUT")]
     source: SourceSpec,
     /// Topic of sensor_msgs/PointCloud2 in a bag or MCAP file [default: the only one].
@@ -66,6 +68,10 @@ pub struct RunArgs {
     summary: Option<PathBuf>,
     #[command(flatten)]
     network: NetworkArgs,
+    /// ROS 2: the odometry (`/emr/FLEET/robotN/odometry`) and keyframe clouds
+    /// (`/emr/FLEET/robotN/keyframe`) as rmw_zenoh topics.
+    #[command(flatten)]
+    ros2: bus::ros2::Ros2Args,
 }
 
 /// Paces of `emr-edge run`.
@@ -89,6 +95,9 @@ impl From<RateArg> for Rate {
 /// `emr-edge run`: the node on its own runtime until the source ends or a signal comes.
 pub fn run(args: RunArgs) -> Result<()> {
     let robot = robot_id(args.robot, &args.source)?;
+    let network = args.network.joining(bus::DEFAULT_PORT);
+    // A ros2: source is read on the robot's own session; only its domain is set here.
+    let source = args.source.clone().on_network(network.clone(), args.ros2.ros2_domain);
     let odometry = Tuning::from(&args.tuning).load()?;
     let state = args.state.as_deref().and_then(|dir| StateDir::open(dir, robot));
     let session = node::new_session(state.as_ref().and_then(StateDir::newest_session));
@@ -113,9 +122,9 @@ pub fn run(args: RunArgs) -> Result<()> {
         loops: !args.no_loops,
         linger: !args.exit_when_done,
         on_source_end: args.summary.clone().map(|path| summary_writer(path, robot, session)),
-        ..NodeConfig::new(args.fleet.clone(), robot, args.source.clone())
+        ros2_domain: args.ros2.publish_domain(),
+        ..NodeConfig::new(args.fleet.clone(), robot, source)
     };
-    let network = args.network.joining(bus::DEFAULT_PORT);
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build().context("cannot start tokio")?;
     let summary = runtime.block_on(async {
         // Listen for the signals before anything slow, so that an early Ctrl-C still stops cleanly.
@@ -171,5 +180,6 @@ fn robot_id(given: Option<u32>, source: &SourceSpec) -> Result<u32> {
         (None, SourceSpec::Sim { robot, .. }) => Ok(*robot),
         (None, SourceSpec::Recording(path)) => bail!("--robot is required with a recording ({})", path.display()),
         (None, SourceSpec::Udp(address)) => bail!("--robot is required with a live sensor (udp:{address})"),
+        (None, spec @ SourceSpec::Ros2 { .. }) => bail!("--robot is required with a ROS 2 topic ({spec})"),
     }
 }

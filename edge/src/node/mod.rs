@@ -10,12 +10,14 @@
 //! sample per keyframe: an asker must `get` with `ConsolidationMode::None`, or zenoh's default
 //! consolidation keeps a single reply.
 
+mod ros2;
 mod serve;
 pub mod state_dir;
 mod store;
 mod worker;
 
 use std::future::Future;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
@@ -35,6 +37,7 @@ use zenoh::qos::CongestionControl;
 use crate::loops::{self, LoopCloser, LoopError};
 use crate::odometry::{Odometry, OdometryConfig, OdometryError};
 use crate::recording::RecordingOptions;
+use crate::ros2_topic::Link;
 use crate::source::{Source, SourceError, SourceLosses, SourceSpec};
 use state_dir::StateDir;
 use store::Store;
@@ -101,6 +104,8 @@ pub struct NodeConfig {
     pub linger: bool,
     /// Called once when the source has ended and its keyframes are published (before lingering).
     pub on_source_end: Option<SourceEnd>,
+    /// The ROS domain to publish the odometry and keyframes in as ROS 2 topics; `None`: none.
+    pub ros2_domain: Option<u32>,
 }
 
 /// A callback told what the node did when its source ends: the demo and `emr-edge run --summary`
@@ -134,6 +139,7 @@ impl NodeConfig {
             state: None,
             linger: true,
             on_source_end: None,
+            ros2_domain: None,
         }
     }
 }
@@ -277,6 +283,9 @@ pub enum NodeError {
     /// The odometry thread panicked.
     #[error("the odometry thread failed: {0}")]
     Worker(String),
+    /// The ROS 2 topics could not be set up.
+    #[error("ROS 2: {0}")]
+    Ros2(String),
 }
 
 /// Runs a robot until its source ends (and, when `linger`, until `shutdown`) or `shutdown` resolves:
@@ -286,8 +295,10 @@ pub async fn run(
     config: NodeConfig,
     shutdown: impl Future<Output = ()>,
 ) -> Result<NodeSummary, NodeError> {
+    // Set on shutdown: a live source stops waiting for its next scan.
+    let interrupt = Arc::new(AtomicBool::new(false));
     let worker = Worker {
-        source: open_source(&config).await?,
+        source: open_source(session, &config).await?.until(interrupt.clone()),
         odometry: Odometry::new(config.odometry.clone()).map_err(NodeError::OdometryConfig)?,
         fleet: config.fleet.clone(),
         robot: config.robot,
@@ -297,12 +308,17 @@ pub async fn run(
         loops: config.loops.then(|| LoopCloser::new(config.odometry.loops.clone())),
         scan_context: config.odometry.loops.scan_context.clone(),
         made: Arc::new(Mutex::new(Made::default())),
+        keep_clouds: config.ros2_domain.is_some(),
     };
     let links = Links::declare(session, &config).await?;
     let made = worker.made.clone();
     let (tx, rx) = mpsc::channel(CHANNEL_SCANS);
     let thread = tokio::task::spawn_blocking(move || worker.run(tx));
     let mut outbox = Outbox::new(&links, config.robot, made);
+    let shutdown = async move {
+        shutdown.await;
+        interrupt.store(true, Ordering::Relaxed);
+    };
     let pumped = pump(&mut outbox, rx, thread, &config, shutdown).await;
     outbox.summary.held = outbox.held();
     let summary = outbox.summary;
@@ -311,13 +327,19 @@ pub async fn run(
     Ok(summary)
 }
 
-/// Opens the source off the async threads (a simulated world is built, a recording indexed).
-async fn open_source(config: &NodeConfig) -> Result<Source, NodeError> {
+/// Opens the source off the async threads (a simulated world is built, a recording indexed); a
+/// ROS 2 topic is read on the node's own session.
+async fn open_source(session: &Session, config: &NodeConfig) -> Result<Source, NodeError> {
     let (spec, frames, sim, recording) =
         (config.source.clone(), config.max_frames, config.sim.clone(), config.recording.clone());
     let start_at = config.start_at;
+    let link = Link::Session(session.clone());
     let opened = tokio::task::spawn_blocking(move || {
-        Source::open(&spec, frames, &sim, &recording).map(|source| source.starting_at(start_at))
+        let source = match &spec {
+            SourceSpec::Ros2 { topic, domain, .. } => Source::ros2(link, *domain, topic, frames, &recording),
+            _ => Source::open(&spec, frames, &sim, &recording),
+        };
+        source.map(|source| source.starting_at(start_at))
     })
     .await
     .map_err(|e| NodeError::Worker(e.to_string()))?;
@@ -385,6 +407,8 @@ struct Links<'a> {
     latest_posegraph: Arc<Mutex<Option<ZBytes>>>,
     serving_posegraph: JoinHandle<()>,
     stop_serving_posegraph: oneshot::Sender<()>,
+    /// The ROS 2 topics, when asked for.
+    ros2: Option<ros2::EdgeRos2>,
 }
 
 impl<'a> Links<'a> {
@@ -417,6 +441,10 @@ impl<'a> Links<'a> {
         let latest_posegraph = Arc::new(Mutex::new(None));
         let (stop_serving_posegraph, stop) = oneshot::channel();
         let serving_posegraph = tokio::spawn(serve::serve_latest(queryable, latest_posegraph.clone(), stop));
+        let ros2 = match config.ros2_domain {
+            Some(domain) => Some(ros2::EdgeRos2::declare(session, fleet, robot, domain).await?),
+            None => None,
+        };
         Ok(Links {
             token,
             publisher,
@@ -427,6 +455,7 @@ impl<'a> Links<'a> {
             latest_posegraph,
             serving_posegraph,
             stop_serving_posegraph,
+            ros2,
         })
     }
 
@@ -502,8 +531,14 @@ impl<'l> Outbox<'l> {
         s.ground_truth.push(scan.ground_truth);
         s.odometry_ms.push(scan.odometry_ms);
         s.source_losses.add(&scan.losses);
-        if let Some(kf) = scan.keyframe {
+        if let Some(ros2) = &self.links.ros2 {
+            ros2.odometry(scan.stamp, &scan.pose).await;
+        }
+        if let Some(mut kf) = scan.keyframe {
             s.keyframe_poses.push(scan.pose);
+            if let (Some(ros2), Some(cloud)) = (&self.links.ros2, kf.cloud.take()) {
+                ros2.keyframe(scan.stamp, &scan.pose, &cloud).await;
+            }
             self.publish(kf).await?;
         }
         let s = &mut self.summary;

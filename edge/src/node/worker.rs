@@ -5,6 +5,7 @@
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
+use cloud::PointCloud;
 use cloud::stopwatch::Stopwatch;
 use nalgebra::Isometry3;
 use prost::Message;
@@ -60,6 +61,9 @@ pub(crate) struct EncodedKeyframe {
     pub seq: u64,
     /// The message bytes.
     pub payload: Vec<u8>,
+    /// The keyframe's cloud, kept for the ROS 2 topics (only when they are on: it is not counted
+    /// among what the node holds).
+    pub cloud: Option<PointCloud>,
 }
 
 /// The worker's side of what a node holds ([`super::Held`]), shared with the publisher, which
@@ -96,6 +100,8 @@ pub(crate) struct Worker {
     pub scan_context: ScanContextConfig,
     /// What it has made, for the count of what the node holds.
     pub made: Arc<Mutex<Made>>,
+    /// Hand each keyframe's cloud on beside its message (for the ROS 2 topics).
+    pub keep_clouds: bool,
 }
 
 impl Worker {
@@ -186,7 +192,8 @@ impl Worker {
         let mut msg = wire::keyframe_message(&self.fleet, self.robot, kf, stamp, Some(context), &self.codec)
             .map_err(|source| NodeError::Encode { seq: kf.seq, source })?;
         msg.session = self.session;
-        Ok(EncodedKeyframe { seq: kf.seq, payload: msg.encode_to_vec() })
+        let cloud = self.keep_clouds.then(|| kf.cloud.clone());
+        Ok(EncodedKeyframe { seq: kf.seq, payload: msg.encode_to_vec(), cloud })
     }
 }
 

@@ -376,6 +376,11 @@ impl OdometryPipeline {
         OdometryPipeline { loops, ..self }
     }
 
+    /// Ends the run early, with what it has, once `interrupt` is set (see [`Source::until`]).
+    pub fn until(self, interrupt: std::sync::Arc<std::sync::atomic::AtomicBool>) -> Self {
+        OdometryPipeline { source: self.source.until(interrupt), ..self }
+    }
+
     /// How many scans the source will give, when known in advance.
     pub fn expected_scans(&self) -> Option<usize> {
         self.source.len

@@ -462,13 +462,42 @@ impl Recording {
 
     /// The common steps: drop invalid points, derive missing channels.
     fn finish(&mut self, raw: RawScan) -> Scan {
-        let RawScan { mut cloud, stamp, index, mut dropped, gaps, partial } = raw;
-        if self.options.drop_origin_points {
-            dropped += drop_origin_points(&mut cloud);
-        }
-        self.channels.derive(&mut cloud);
-        Scan { cloud, stamp, index, dropped, gaps, partial }
+        finish(raw, &self.options, &mut self.channels)
     }
+}
+
+/// What every scan goes through: invalid points dropped, missing channels derived.
+fn finish(raw: RawScan, options: &RecordingOptions, channels: &mut ChannelDeriver) -> Scan {
+    let RawScan { mut cloud, stamp, index, mut dropped, gaps, partial } = raw;
+    if options.drop_origin_points {
+        dropped += drop_origin_points(&mut cloud);
+    }
+    channels.derive(&mut cloud);
+    Scan { cloud, stamp, index, dropped, gaps, partial }
+}
+
+/// A serialised ROS 2 PointCloud2 (CDR) received from elsewhere, made a scan as a recording's
+/// message is: converted, invalid points dropped, missing channels derived by `channels` (made
+/// with the same `options`). `receive_time` stands in for a header without a stamp.
+pub fn cdr_scan(
+    payload: &[u8],
+    index: usize,
+    receive_time: f64,
+    options: &RecordingOptions,
+    channels: &mut ChannelDeriver,
+) -> Result<Scan, pointcloud2::MessageError> {
+    let message = pointcloud2::decode_cdr(payload)?;
+    let converted = message.to_cloud()?;
+    let stamp = if message.stamp != 0.0 { message.stamp } else { receive_time };
+    let raw = RawScan {
+        cloud: converted.cloud,
+        stamp,
+        index,
+        dropped: converted.dropped_non_finite,
+        gaps: 0,
+        partial: false,
+    };
+    Ok(finish(raw, options, channels))
 }
 
 /// Fills the ring and time channels scans lack as the options say (channels a scan has are kept):

@@ -54,7 +54,7 @@ pub enum Command {
     /// source has ground truth.
     Odometry {
         #[command(flatten)]
-        source: SourceArgs,
+        source: Box<SourceArgs>,
         #[command(flatten)]
         tuning: TuningArgs,
         /// Scans read from the source.
@@ -161,7 +161,7 @@ pub fn run(command: Command) -> Result<()> {
             let config = Tuning::from(&tuning).load()?;
             let sim = source.sim.config();
             let scans =
-                pipeline::read_all(pipeline::open(&source.input, source.reading(), Some(frames), &config, &sim)?)?;
+                pipeline::read_all(pipeline::open(&source.input(), source.reading(), Some(frames), &config, &sim)?)?;
             println!("{}", odometry::odometry(&scans, &config, runs)?);
         }
         Command::Robustness(args) => robustness::robustness(args)?,

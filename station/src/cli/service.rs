@@ -57,6 +57,10 @@ pub struct RunArgs {
     record: Option<PathBuf>,
     #[command(flatten)]
     network: bus::NetworkArgs,
+    /// ROS 2: the global map, each robot's path, /tf and the status as rmw_zenoh topics
+    /// (`/emr/FLEET/map`, `/emr/FLEET/robotN/path`, `/tf`, `/emr/FLEET/status`; see the README).
+    #[command(flatten)]
+    ros2: bus::ros2::Ros2Args,
 }
 
 // `emr-station watch`.
@@ -112,8 +116,9 @@ pub fn keys(args: KeysArgs) -> Result<()> {
 }
 
 pub fn run(args: RunArgs) -> Result<()> {
-    let RunArgs { fleet, data_dir, preset, debounce_ms, max_delay_ms, foxglove, record, network } = args;
+    let RunArgs { fleet, data_dir, preset, debounce_ms, max_delay_ms, foxglove, record, network, ros2 } = args;
     let config = StationConfig {
+        ros2_domain: ros2.publish_domain(),
         data_dir: Some(data_dir),
         merge: MergeConfig::preset(preset),
         debounce: Duration::from_millis(debounce_ms),

@@ -107,6 +107,8 @@ pub struct MapCloud {
     pub cloud: PointCloud,
     /// Per point, its robot.
     pub robots: Vec<u32>,
+    /// Per point, its robot's session (ids beyond `u32::MAX` saturate).
+    pub sessions: Vec<u32>,
 }
 
 // Map ids hold a robot id and a session's rank (see `MapIds`).
@@ -286,8 +288,12 @@ impl MergeWorker {
         let bytes = map.encode_to_vec();
         log_report(&report, &self.ids, round.as_ref(), keyframes, message.elapsed());
         let basis = robots.iter().map(|r| (r.member(), r.basis)).collect();
-        let origins = report.origins.iter().map(|&id| self.ids.member(id).robot).collect();
-        let cloud = MapCloud { robots: origins, cloud: report.global_map };
+        let origins: Vec<Member> = report.origins.iter().map(|&id| self.ids.member(id)).collect();
+        let cloud = MapCloud {
+            robots: origins.iter().map(|m| m.robot).collect(),
+            sessions: origins.iter().map(|m| u32::try_from(m.session).unwrap_or(u32::MAX)).collect(),
+            cloud: report.global_map,
+        };
         // A merge frees hundreds of megabytes of preparations, decoded keyframes and pair work on
         // rayon's threads; glibc keeps what each thread freed in its own arena until told.
         cloud::memory::release_free_memory();

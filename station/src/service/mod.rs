@@ -8,6 +8,7 @@
 //! - [`merge_job`]: local maps, the long-lived merger and the `GlobalMap` message.
 //! - [`estimator`]: the merger's rounds of estimation, on threads of their own beside the jobs.
 //! - [`live_view`]: the live view and recording (`--foxglove`, `--record`), when one is given.
+//! - [`ros2_view`]: the ROS 2 topics (`--ros2`), when asked for.
 //! - [`store`]: persistence in redb, written in batches by a writer thread.
 //! - [`station`]: the event loop tying them together; [`Station`] and [`run`] start it.
 //! - [`client`]: what other processes use: fetching the global map, summarising samples.
@@ -24,6 +25,7 @@ pub mod joint_input;
 pub mod live_view;
 pub mod merge_job;
 pub mod merge_queue;
+pub mod ros2_view;
 pub mod station;
 pub mod store;
 
@@ -57,6 +59,8 @@ pub struct StationConfig {
     pub status_period: Duration,
     /// Where the live view goes (a Foxglove server, an MCAP recording); `None`: nowhere.
     pub live: Option<Arc<Live>>,
+    /// The ROS domain to publish the station's ROS 2 topics in ([`ros2_view`]); `None`: none.
+    pub ros2_domain: Option<u32>,
 }
 
 impl StationConfig {
@@ -70,6 +74,7 @@ impl StationConfig {
             max_delay: Duration::from_secs(2),
             status_period: Duration::from_secs(1),
             live: None,
+            ros2_domain: None,
         }
     }
 }
@@ -86,6 +91,9 @@ pub enum StationError {
     /// Zenoh refused a declaration.
     #[error("zenoh: {0}")]
     Zenoh(String),
+    /// The ROS 2 topics could not be set up.
+    #[error(transparent)]
+    Ros2(#[from] ros2_view::StationRos2Error),
     /// The station's task panicked or was cancelled.
     #[error("station task: {0}")]
     Task(String),

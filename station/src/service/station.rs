@@ -25,6 +25,7 @@ use super::ingest::{self, Malformed};
 use super::live_view::StationView;
 use super::merge_job::{MapCloud, MergeOutcome, MergeWorker, snapshot};
 use super::merge_queue::MergeQueue;
+use super::ros2_view::StationRos2;
 use super::store::{self, Persisted, Store, Write};
 use super::{RobotMemory, StationConfig, StationError, StationProgress, StationSummary};
 use crate::merge::{MergeConfig, MergeError};
@@ -60,7 +61,12 @@ impl Station {
             .await
             .map_err(|e| StationError::Task(e.to_string()))?;
         let endpoints = Endpoints::declare(&session, &config.fleet).await?;
+        let ros2 = match config.ros2_domain {
+            Some(domain) => Some(StationRos2::declare(&session, &config.fleet, domain).await?),
+            None => None,
+        };
         let mut core = Core::new(session, &config, worker, writer, progress_tx, events_tx, reloaded);
+        core.ros2 = ros2;
         core.publish_reloaded(&endpoints).await;
         let (stop, stopped) = oneshot::channel();
         let status_period = config.status_period;
@@ -215,7 +221,7 @@ impl Endpoints {
 /// Messages from the station's helper tasks to its loop.
 enum Event {
     /// A reply to a backfill request to `robot`: a keyframe, or the robot's newest pose graph.
-    Reply { robot: u32, sample: Sample },
+    Reply { robot: u32, sample: Box<Sample> },
     /// The backfill request to `robot` has ended, as said.
     BackfillDone { robot: u32, ended: Ended },
     /// A round of estimation has finished: the next merge job applies it.
@@ -271,6 +277,8 @@ struct Core {
     events: mpsc::UnboundedSender<Event>,
     /// The live view, when one is configured.
     view: Option<StationView>,
+    /// The ROS 2 topics, when asked for.
+    ros2: Option<StationRos2>,
 }
 
 impl Core {
@@ -307,6 +315,7 @@ impl Core {
             progress,
             events,
             view: config.live.clone().map(StationView::new),
+            ros2: None,
         }
     }
 
@@ -317,10 +326,16 @@ impl Core {
             if let Err(e) = endpoints.global_map.put(p.bytes.to_vec()).await {
                 warn!("cannot publish the global map: {e}");
             }
-            if let Some(view) = &self.view {
+            if self.view.is_some() || self.ros2.is_some() {
                 // Which robot each point came from is not persisted: the reloaded map has no labels.
-                let cloud = MapCloud { cloud: global_map_cloud(&p.map).unwrap_or_default(), robots: vec![] };
-                view.map(&p.map, &cloud, &self.state);
+                let cloud =
+                    MapCloud { cloud: global_map_cloud(&p.map).unwrap_or_default(), robots: vec![], sessions: vec![] };
+                if let Some(view) = &self.view {
+                    view.map(&p.map, &cloud, &self.state);
+                }
+                if let Some(ros2) = &mut self.ros2 {
+                    ros2.map(&p.map, &cloud, &self.state).await;
+                }
             }
         }
         self.report_progress();
@@ -570,6 +585,9 @@ impl Core {
         if let Some(view) = &self.view {
             view.map(&map, &cloud, &self.state);
         }
+        if let Some(ros2) = &mut self.ros2 {
+            ros2.map(&map, &cloud, &self.state).await;
+        }
         self.latest = Some(Published { map, bytes });
     }
 
@@ -604,6 +622,9 @@ impl Core {
         };
         if let Some(view) = &self.view {
             view.status(&status, self.counters.merges);
+        }
+        if let Some(ros2) = &self.ros2 {
+            ros2.status(&status).await;
         }
         if let Err(e) = publisher.put(status.encode_to_vec()).await {
             debug!("cannot publish the status: {e}");
@@ -750,7 +771,7 @@ async fn ask(
                 match reply.result() {
                     Ok(sample) => {
                         out.keyframes += 1;
-                        let _ = events.send(Event::Reply { robot, sample: sample.clone() });
+                        let _ = events.send(Event::Reply { robot, sample: Box::new(sample.clone()) });
                     }
                     Err(e) => {
                         out.failed = true;
