@@ -328,4 +328,30 @@ fn kitti_scans_from_a_ros2_driver_give_the_poses_the_files_give() {
     assert_eq!(ran.frames, frames as u64, "scans the robot read from the topic");
     assert!(ran.keyframes >= 2, "{} keyframes from {frames} scans", ran.keyframes);
     println!("emr-edge run on ros2:/points: {} scans, {} keyframes", ran.frames, ran.keyframes);
+
+    // Without --max-frames the topic has no end: Ctrl-C ends the run, and what was read is
+    // written (as many poses as scans read, the files' poses).
+    let endpoint = bus::endpoint(bus::free_port().unwrap());
+    let args: Vec<String> = ["odometry", "ros2:/points", "--no-loops", "--listen", &endpoint, "--out"]
+        .map(String::from)
+        .into_iter()
+        .chain([out("interrupted").display().to_string()])
+        .collect();
+    let mut interrupted = Process::start("interrupted", &binary("emr-edge"), &args, dir.path());
+    publish(&endpoint, "publisher-interrupted.log");
+    std::thread::sleep(Duration::from_secs(2));
+    let _ = Command::new("kill").arg("-INT").arg(interrupted.id().to_string()).status();
+    let ended = interrupted.wait(Duration::from_secs(60));
+    assert!(
+        ended.is_some_and(|s| s.success()),
+        "odometry on ros2:/points after Ctrl-C: {ended:?}\n{}",
+        interrupted.tail()
+    );
+    let written = read("interrupted");
+    let read_scans = written.lines().count();
+    assert!((1..=frames).contains(&read_scans), "{read_scans} poses written after Ctrl-C");
+    for (a, b) in poses(&written).iter().zip(poses(&from_files)) {
+        assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-6), "poses after Ctrl-C differ from the files'");
+    }
+    println!("Ctrl-C after {frames} scans published: {read_scans} poses written, the files' poses");
 }
