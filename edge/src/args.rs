@@ -139,6 +139,9 @@ pub enum SensorArg {
     Os64,
     /// Ouster-like: 128 beams, -45..+45 deg, 1024 columns, 0.3-100 m.
     Os128,
+    /// Livox Avia-like solid state: a 70 x 77 deg view ahead drawn as a rosette, no rings,
+    /// 4,800 points per 0.1 s sweep, 1-100 m.
+    Avia,
 }
 
 impl From<SensorArg> for SensorKind {
@@ -148,6 +151,7 @@ impl From<SensorArg> for SensorKind {
             SensorArg::Hdl64 => SensorKind::Hdl64,
             SensorArg::Os64 => SensorKind::Os64,
             SensorArg::Os128 => SensorKind::Os128,
+            SensorArg::Avia => SensorKind::Avia,
         }
     }
 }

@@ -7,7 +7,8 @@ use cloud::Preset;
 use cloud::trajectory::Trajectory;
 use edge::recording::{self, RecordingOptions};
 use eval::robustness::{
-    self, Case, HoldCriterion, Motion, Planned, Recipe, RunOptions, SimCase, kitti_every, run_ours, shuffled, simulated,
+    self, Case, HoldCriterion, Motion, Part, Planned, Recipe, RunOptions, SimCase, kitti_every, run_ours, shuffled,
+    simulated,
 };
 use nalgebra::{Isometry3, Vector3};
 
@@ -117,6 +118,55 @@ fn a_car_case_starts_at_speed() {
 }
 
 #[test]
+fn a_compensated_case_holds_the_raw_sweeps_points_where_the_sensor_ends_its_sweep() {
+    let raw = SimCase { scans: 2, ..SimCase::default() };
+    let compensated = SimCase { compensated: true, ..raw.clone() };
+    let (raw, compensated) = (simulated(&raw).unwrap(), simulated(&compensated).unwrap());
+    assert_eq!(raw.truth(), compensated.truth());
+    let sim = sim::Simulator::new(
+        sim::Scenario::by_name("warehouse-small").unwrap(),
+        0,
+        sim::SimConfig { sensor: sim::SensorKind::Vlp16.model(), ..sim::SimConfig::default() },
+    )
+    .unwrap();
+    for (r, c) in raw.scans.iter().zip(&compensated.scans) {
+        assert!(c.cloud.time.is_none() && c.cloud.ring == r.cloud.ring && c.cloud.intensity == r.cloud.intensity);
+        let end = r.ground_truth.unwrap();
+        let times = r.cloud.time.as_ref().unwrap();
+        let mut moved = 0;
+        for ((p, q), &t) in r.cloud.points.iter().zip(&c.cloud.points).zip(times) {
+            // The raw point placed by the pose at its own firing time, the compensated one by the
+            // sweep's end pose: the same world point.
+            let world = sim.pose_at(r.stamp + f64::from(t)) * p.cast::<f64>();
+            assert!((world - end * q.cast::<f64>()).norm() < 1e-3, "{p} -> {q}");
+            moved += usize::from((p - q).norm() > 0.01);
+        }
+        assert!(moved > r.cloud.len() / 2, "compensation moved only {moved} of {} points", r.cloud.len());
+    }
+}
+
+#[test]
+fn seeds_redraw_simulated_and_shuffled_noise_and_real_scans_have_one_draw() {
+    let kitti_case = Planned {
+        name: "k".into(),
+        class: "every-k",
+        part: Part::Tuned,
+        recipe: Recipe::Kitti { dir: kitti(), start: 0, every: 8 },
+    };
+    assert!(kitti_case.seeded(0).is_some() && kitti_case.seeded(1).is_none());
+    let sim_case = Planned { recipe: Recipe::Sim(SimCase { scans: 1, ..SimCase::default() }), ..kitti_case.clone() };
+    let points = |p: Planned| p.build().unwrap().scans[0].cloud.points.clone();
+    let (zero, one) = (points(sim_case.seeded(0).unwrap()), points(sim_case.seeded(1).unwrap()));
+    assert_ne!(zero, one);
+    assert_eq!(zero, points(sim_case.clone()));
+    let shuffled = Planned {
+        recipe: Recipe::Shuffled { of: Box::new(kitti_case.recipe.clone()), seed: 7, derive_channels: true },
+        ..kitti_case
+    };
+    assert_ne!(points(shuffled.seeded(0).unwrap()), points(shuffled.seeded(1).unwrap()));
+}
+
+#[test]
 fn shuffling_keeps_the_point_set_and_drops_rings_and_times() {
     let case = warehouse(1, 10.0, 2);
     let mixed = shuffled(case.clone(), 7);
@@ -169,10 +219,11 @@ fn bare_shuffled_scans_run_on_voxel_features_and_a_case_that_cannot_be_built_is_
     let planned = Planned {
         name: "bare".into(),
         class: "shuffled",
+        part: Part::Tuned,
         recipe: Recipe::Shuffled { of, seed: 1, derive_channels: false },
     };
     let row =
-        robustness::run_case(&planned, &RunOptions { criterion: HoldCriterion::default(), kiss: None, out: None });
+        robustness::run_case(&planned, 0, &RunOptions { criterion: HoldCriterion::default(), kiss: None, out: None });
     assert_eq!((row.name.as_str(), row.class.as_str(), row.scans), ("bare", "shuffled", 2));
     // Without ring or time channels the odometry takes its features from voxel shapes: it runs.
     assert!(row.ours.verdict.is_ok(), "{:?}", row.ours.verdict);
@@ -180,7 +231,7 @@ fn bare_shuffled_scans_run_on_voxel_features_and_a_case_that_cannot_be_built_is_
     // A case that cannot be built is a row too.
     let missing = Planned { recipe: Recipe::Kitti { dir: "/no/such/dir".into(), start: 0, every: 1 }, ..planned };
     let row =
-        robustness::run_case(&missing, &RunOptions { criterion: HoldCriterion::default(), kiss: None, out: None });
+        robustness::run_case(&missing, 0, &RunOptions { criterion: HoldCriterion::default(), kiss: None, out: None });
     assert!(row.ours.verdict.unwrap_err().contains("/no/such/dir"));
 }
 
@@ -195,7 +246,17 @@ fn the_matrix_names_every_case_once_and_quick_is_a_subset() {
     assert_eq!(unique.len(), names.len(), "{names:?}");
     assert!(quick.len() < full.len() && quick.iter().all(|q| names.contains(&q.name.as_str())));
     for class in ["every-k", "rate", "car", "spin", "sensor", "shuffled"] {
-        assert!(full.iter().any(|p| p.class == class), "{class}");
+        assert!(full.iter().any(|p| p.class == class && p.part == Part::Tuned), "{class}");
+    }
+    // The held-back part: classes of their own, each run with the odometry's defaults.
+    let held: Vec<_> = full.iter().filter(|p| p.part == Part::HeldBack).collect();
+    for class in ["solid-state", "highway", "sparse-outdoor", "fast-turn", "compensated", "rolling"] {
+        assert!(held.iter().any(|p| p.class == class), "{class}");
+    }
+    assert!(quick.iter().any(|p| p.part == Part::HeldBack));
+    for p in held {
+        let Recipe::Sim(spec) = &p.recipe else { panic!("{} is not simulated", p.name) };
+        assert_eq!(spec.preset, cloud::Preset::Indoor, "{}", p.name);
     }
 }
 
@@ -210,8 +271,11 @@ fn the_command_prints_a_row_per_chosen_case_and_refuses_an_unknown_one() {
     let run = emr_eval(&["robustness", "--no-kiss", "--case", "from-5-every-5", "--data", data]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let table = String::from_utf8(run.stdout).unwrap();
-    let lines: Vec<&str> = table.lines().collect();
+    let lines: Vec<&str> = table.lines().take_while(|l| !l.is_empty()).collect();
     assert_eq!(lines.len(), 3, "{table}");
+    // The summary: one part, one run, held, no KISS-ICP; the case over its one seed.
+    assert!(table.contains("\n| tuned | 1 | 1 | - | 0.00 / 0.00 (0 runs) | 0 of 0 |\n"), "{table}");
+    assert!(table.contains("\n| kitti00-from-5-every-5 | tuned | 1 | "), "{table}");
     assert!(lines[0].starts_with("| case | class | scans | path m | ours ATE m | ours held | lost | recoveries |"));
     let cells: Vec<&str> = lines[2].split('|').map(str::trim).collect();
     assert_eq!(&cells[1..4], ["kitti00-from-5-every-5", "every-k", "3"]);

@@ -69,7 +69,7 @@ pub struct Scan {
 
 /// One sweep as the sensor measured it, before the ranges became points: what a LiDAR puts in its
 /// packets. Cell (column, beam) holds the return of beam `beam` (0 = lowest) fired in column
-/// `column`; its point in [`Scan::cloud`] is `range · SensorModel::direction(beam, column)`.
+/// `column`; its point in [`Scan::cloud`] is `range · SensorModel::direction_at(beam, column, stamp)`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RangeImage {
     /// Frame index (0-based).
@@ -301,8 +301,12 @@ impl Simulator {
         let origin = Point3::from(pose.translation.vector);
         let (sa, ca) = self.azimuths[column];
         for (beam, slot) in out.iter_mut().enumerate() {
-            let (se, ce) = self.elevations[beam];
-            let local = Vector3::new(ce * ca, ce * sa, se);
+            let local = if sensor.has_rings() {
+                let (se, ce) = self.elevations[beam];
+                Vector3::new(ce * ca, ce * sa, se)
+            } else {
+                sensor.direction_at(beam, column, stamp)
+            };
             let ray = Ray::new(origin, rotation * local);
             let key = (frame as u64, (column * sensor.beams() + beam) as u64);
             *slot = self.measure(&ray, &local, key);
@@ -327,7 +331,8 @@ impl Simulator {
         Some(Sample { point: [p.x as f32, p.y as f32, p.z as f32], range, intensity: reflectivity * incidence })
     }
 
-    /// The returns in firing order as a cloud with intensity, ring and time channels.
+    /// The returns in firing order as a cloud with intensity, ring and time channels (no ring
+    /// channel for a sensor without rings).
     fn assemble(&self, samples: &[Option<Sample>]) -> PointCloud {
         let sensor = &self.config.sensor;
         let count = samples.iter().flatten().count();
@@ -342,6 +347,9 @@ impl Simulator {
             intensity.push(s.intensity);
             ring.push(beam as u16);
             time.push(sensor.firing_time(column) as f32);
+        }
+        if !sensor.has_rings() {
+            cloud.ring = None;
         }
         cloud
     }

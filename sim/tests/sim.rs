@@ -150,6 +150,11 @@ fn room() -> Arc<World> {
 
 /// A robot driving along +x at a constant `speed` from x = −20 to x = 28 in [`room`].
 fn straight_run(speed: f64, noise: f64) -> Simulator {
+    straight_run_of(SensorModel::vlp16(), speed, noise)
+}
+
+/// [`straight_run`] with another sensor.
+fn straight_run_of(sensor: SensorModel, speed: f64, noise: f64) -> Simulator {
     let config = TrajectoryConfig {
         cruise_speed: speed,
         start_at_rest: false,
@@ -159,7 +164,7 @@ fn straight_run(speed: f64, noise: f64) -> Simulator {
     let path = [Point2::new(-20.0, 0.0), Point2::new(28.0, 0.0)];
     let robot = Trajectory::new(&path, false, &Terrain::Flat(0.0), &config).unwrap();
     let scenario = Scenario::new("room", "straight run", room(), vec![robot]);
-    let config = SimConfig { range_noise: noise, dropout: 0.0, ..SimConfig::default() };
+    let config = SimConfig { range_noise: noise, dropout: 0.0, sensor, ..SimConfig::default() };
     Simulator::new(scenario, 0, config).unwrap()
 }
 
@@ -250,6 +255,36 @@ fn a_deskewed_sweep_lies_on_the_room_at_its_ground_truth_pose() {
     };
     assert!(rms(&deskewed, &scan.ground_truth) < 1.5 * sigma, "deskewed: {} m rms", rms(&deskewed, &scan.ground_truth));
     assert!(rms(&scan.cloud, &scan.ground_truth) > 3.0 * sigma, "raw: {} m rms", rms(&scan.cloud, &scan.ground_truth));
+}
+
+#[test]
+fn a_rosette_sweep_looks_ahead_without_rings_and_lies_on_the_room() {
+    let sigma = 0.01;
+    let sim = straight_run_of(SensorModel::avia(), 2.0, sigma);
+    // At t = 10 s the sensor is at x = 0, 30 m from the front wall, which fills the view.
+    let scan = sim.scan(100);
+    let cloud = &scan.cloud;
+    assert!(cloud.ring.is_none(), "a rosette has no rings");
+    // The room has no ceiling: rays passing over the 5 m walls 30 m ahead (pitch above ~8°,
+    // about a third of the disc) return nothing.
+    assert!(cloud.len() > 2400 && cloud.len() <= 4800, "{} points of 4800 rays", cloud.len());
+    let mut residuals = Vec::new();
+    for (p, t) in timed_points(cloud) {
+        assert!(p.x > 0.0, "a point behind a forward-looking sensor: {p}");
+        residuals.push(room_residual(&(sim.pose_at(scan.stamp + t) * p)));
+    }
+    let rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt();
+    assert!(rms < 1.5 * sigma, "rosette points off the room by {rms} m rms");
+    // The next sweep fires in other directions: no point of it repeats one of this sweep's.
+    let next = sim.scan(101);
+    let direction = |p: &Point3<f32>| p.coords.normalize();
+    let repeated = next
+        .cloud
+        .points
+        .iter()
+        .take(200)
+        .filter(|q| cloud.points.iter().any(|p| direction(p).dot(&direction(q)) > (0.01f32.to_radians()).cos()));
+    assert!(repeated.count() < 20, "the rosette repeats itself between sweeps");
 }
 
 /// Measured minus true range of every point, the truth cast without noise from the pose at the

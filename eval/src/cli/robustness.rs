@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use cloud::stopwatch::Stopwatch;
-use eval::robustness::{self, HoldCriterion, KissConfig, Row, RunOptions, Table};
+use eval::robustness::{self, HoldCriterion, KissConfig, Part, Row, RunOptions, Summary, Table};
 
 /// Arguments of `emr-eval robustness`.
 #[derive(clap::Args, Debug)]
@@ -21,6 +21,14 @@ pub struct RobustnessArgs {
     /// Only the cases whose name contains this.
     #[arg(long = "case")]
     case: Option<String>,
+    /// Only this part of the matrix: the cases the settings were tuned on, or the held-back ones,
+    /// never tuned on [default: both].
+    #[arg(long, value_enum)]
+    part: Option<Part>,
+    /// Runs each simulated or shuffled case with noise drawn from seeds 0..N and reports each
+    /// case's spread over them (real scans run once).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    seeds: u64,
     /// Keep each case's scans here as OUT/NAME (KITTI layout: velodyne/NNNNNN.bin, poses.txt,
     /// times.txt), our poses in OUT/NAME/ours and KISS-ICP's in OUT/NAME/kiss [default: a
     /// temporary directory, removed case by case].
@@ -36,6 +44,7 @@ pub fn robustness(args: RobustnessArgs) -> Result<()> {
     let planned: Vec<_> = robustness::matrix(&args.data, args.quick)
         .into_iter()
         .filter(|p| args.case.as_ref().is_none_or(|c| p.name.contains(c.as_str())))
+        .filter(|p| args.part.is_none_or(|part| p.part == part))
         .collect();
     if planned.is_empty() {
         bail!("no case matches {:?}", args.case.unwrap_or_default());
@@ -48,21 +57,25 @@ pub fn robustness(args: RobustnessArgs) -> Result<()> {
         out: kiss.is_some().then_some(out.clone()).or(args.out.clone()),
         kiss,
     };
+    // Each case at every seed it has a draw for: real scans once.
+    let runs: Vec<(&robustness::Planned, u64)> =
+        planned.iter().flat_map(|p| (0..args.seeds).filter(|&s| p.seeded(s).is_some()).map(move |s| (p, s))).collect();
     let mut rows = Vec::new();
-    for (i, case) in planned.iter().enumerate() {
-        eprintln!("[{}/{}] {} ...", i + 1, planned.len(), case.name);
+    for (i, &(case, seed)) in runs.iter().enumerate() {
+        let what = format!("[{}/{}] {} seed {seed}", i + 1, runs.len(), case.name);
+        eprintln!("{what} ...");
         let watch = Stopwatch::start();
-        let row = robustness::run_case(case, &options);
-        eprintln!("[{}/{}] {} {} in {:.0} s", i + 1, planned.len(), case.name, summary(&row), watch.elapsed_ms() / 1e3);
+        let row = robustness::run_case(case, seed, &options);
+        eprintln!("{what} {} in {:.0} s", summary(&row), watch.elapsed_ms() / 1e3);
         if args.out.is_none() {
-            let _ = std::fs::remove_dir_all(out.join(&row.name));
+            let _ = std::fs::remove_dir_all(out.join(format!("{}-seed-{seed}", row.name)));
         }
         rows.push(row);
     }
     if args.out.is_none() {
         let _ = std::fs::remove_dir(&out);
     }
-    print!("{}", Table(&rows));
+    print!("{}\n{}", Table(&rows), Summary(&rows));
     Ok(())
 }
 

@@ -179,6 +179,10 @@ pub struct SimCase {
     pub preset: Preset,
     /// Noise and dropout seed. Default 0.
     pub seed: u64,
+    /// The scans written already compensated, as KITTI publishes its scans: every point moved to
+    /// where the sensor stands at the sweep's end (the simulator's exact deskewing), rings kept,
+    /// per-point times dropped. Default false (the sensor's raw sweeps).
+    pub compensated: bool,
 }
 
 impl Default for SimCase {
@@ -192,6 +196,7 @@ impl Default for SimCase {
             scans: 150,
             preset: Preset::Indoor,
             seed: 0,
+            compensated: false,
         }
     }
 }
@@ -202,7 +207,16 @@ pub fn simulated(spec: &SimCase) -> Result<Case, CaseError> {
     let sim = simulator(spec)?;
     let first = (spec.start_s * spec.rate_hz).round() as usize;
     let frames = (0..spec.scans).map(|i| first + i * spec.every.max(1));
-    let scans = frames.map(|f| sim.scan(f)).map(SourceScan::from).collect();
+    let scans = frames.map(|f| sim.scan(f)).map(|scan| {
+        if spec.compensated {
+            let points = sim.deskewed(&scan).points;
+            let cloud = cloud::PointCloud { points, time: None, ..scan.cloud.clone() };
+            SourceScan::from(sim::Scan { cloud, ..scan })
+        } else {
+            SourceScan::from(scan)
+        }
+    });
+    let scans = scans.collect();
     non_empty(Case {
         name: format!("sim-{}-{}hz-every-{}", spec.sensor, spec.rate_hz, spec.every),
         class: "sim".into(),

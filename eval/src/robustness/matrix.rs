@@ -1,5 +1,6 @@
 //! The default matrix: which cases, as recipes built only when run (`--case` filters
-//! before anything is read or simulated).
+//! before anything is read or simulated), in two parts: the cases the odometry was tuned on, and
+//! cases of classes it was never tuned on, held back to judge whether it generalises.
 
 use std::path::{Path, PathBuf};
 
@@ -20,6 +21,19 @@ pub enum Recipe {
 }
 
 impl Recipe {
+    /// The same recipe with noise drawn from `seed`: the simulator's range noise and dropouts, or
+    /// the shuffle's order. `None` for real scans, which have one draw.
+    pub fn seeded(&self, seed: u64) -> Option<Recipe> {
+        match self {
+            Recipe::Kitti { .. } => None,
+            Recipe::Sim(spec) => Some(Recipe::Sim(SimCase { seed, ..spec.clone() })),
+            Recipe::Shuffled { of, derive_channels, .. } => {
+                let of = Box::new(of.seeded(seed).unwrap_or_else(|| (**of).clone()));
+                Some(Recipe::Shuffled { of, seed, derive_channels: *derive_channels })
+            }
+        }
+    }
+
     /// The case (named by its builder).
     pub fn build(&self) -> Result<Case, CaseError> {
         match self {
@@ -32,6 +46,28 @@ impl Recipe {
     }
 }
 
+/// Which part of the matrix a case is in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum)]
+pub enum Part {
+    /// Classes the odometry's settings were chosen on: KITTI 00's first scans, the warehouse,
+    /// the campus car, spins, Ouster-like sensors, shuffled points.
+    Tuned,
+    /// Classes never tuned on, each run with the default settings (no preset, compensation on):
+    /// a solid-state rosette, highway speed, a 16-beam car, 25° turns between scans, a
+    /// recording written already compensated, rolling ground, 20 Hz. Judged, never tuned on.
+    HeldBack,
+}
+
+impl Part {
+    /// The name in tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            Part::Tuned => "tuned",
+            Part::HeldBack => "held-back",
+        }
+    }
+}
+
 /// A case of the matrix, not built yet.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Planned {
@@ -39,6 +75,8 @@ pub struct Planned {
     pub name: String,
     /// Its class of hard input.
     pub class: &'static str,
+    /// The part of the matrix it is in.
+    pub part: Part,
     /// How to make it.
     pub recipe: Recipe,
 }
@@ -47,6 +85,15 @@ impl Planned {
     /// Builds the case under the planned name and class.
     pub fn build(&self) -> Result<Case, CaseError> {
         Ok(Case { name: self.name.clone(), class: self.class.into(), ..self.recipe.build()? })
+    }
+
+    /// The case with its noise drawn from `seed` (see [`Recipe::seeded`]); seed 0 is the case
+    /// itself, whatever its recipe.
+    pub fn seeded(&self, seed: u64) -> Option<Planned> {
+        if seed == 0 {
+            return Some(self.clone());
+        }
+        Some(Planned { recipe: self.recipe.seeded(seed)?, ..self.clone() })
     }
 }
 
@@ -64,12 +111,20 @@ fn count(rate_hz: f64, every: usize, quick: Option<usize>) -> usize {
     quick.unwrap_or((SPAN_S * rate_hz / every as f64).round() as usize)
 }
 
-/// The matrix: KITTI 00 (in `kitti`) every k-th, the simulated warehouse every k-th and at four
-/// rates, a car on the campus, turning in place, Ouster-like sensors, and shuffled points. `quick`
-/// keeps one case of most classes, with few scans.
+/// The matrix: the [`Part::Tuned`] cases ([`tuned`]) and the [`Part::HeldBack`] ones
+/// ([`held_back`]). `quick` keeps one case of most classes, with few scans.
 pub fn matrix(kitti: &Path, quick: bool) -> Vec<Planned> {
+    let mut cases = tuned(kitti, quick);
+    cases.extend(held_back(quick));
+    cases
+}
+
+/// The cases the odometry was tuned on: KITTI 00 (in `kitti`) every k-th, the simulated warehouse
+/// every k-th and at three rates, a car on the campus, turning in place, Ouster-like sensors, and
+/// shuffled points.
+fn tuned(kitti: &Path, quick: bool) -> Vec<Planned> {
     let short = quick.then_some(40);
-    let plan = |name: String, class, recipe| Planned { name, class, recipe };
+    let plan = |name: String, class, recipe| Planned { name, class, part: Part::Tuned, recipe };
     let kitti_case = |start, every| Recipe::Kitti { dir: kitti.to_owned(), start, every };
     let mut cases = vec![plan("kitti00-every-1".into(), "every-k", kitti_case(0, 1))];
     let kitti_k: &[usize] = if quick { &[3] } else { &[2, 3, 4, 5] };
@@ -99,6 +154,39 @@ pub fn matrix(kitti: &Path, quick: bool) -> Vec<Planned> {
     cases
 }
 
+/// The cases held back: classes the settings were never chosen on, built from the simulator, each
+/// with the odometry's defaults (no preset, compensation on), as a user who knows nothing of the
+/// recording would run it.
+fn held_back(quick: bool) -> Vec<Planned> {
+    let scans = if quick { 40 } else { 150 };
+    let default = SimCase { scans, preset: Preset::Indoor, ..SimCase::default() };
+    let route = |scenario: &str, robot| Motion::Route { scenario: scenario.into(), robot };
+    let avia = |motion| SimCase { sensor: SensorKind::Avia, motion, ..default.clone() };
+    let car = |speed, sensor| SimCase { motion: Motion::Car { speed }, sensor, start_s: 0.0, ..default.clone() };
+    let turn = Motion::Spin { scenario: "warehouse-small".into(), at: [10.0, 12.0], deg_per_s: 250.0 };
+    let plan = |name: &str, class, spec: SimCase| Planned {
+        name: format!("heldback-{name}"),
+        class,
+        part: Part::HeldBack,
+        recipe: Recipe::Sim(spec),
+    };
+    let mut cases = vec![
+        plan("avia-warehouse", "solid-state", avia(route("warehouse-small", 0))),
+        plan("turn-25deg", "fast-turn", SimCase { motion: turn, start_s: 0.0, ..default.clone() }),
+        plan("compensated-warehouse", "compensated", SimCase { compensated: true, ..default.clone() }),
+    ];
+    if !quick {
+        cases.extend([
+            plan("avia-campus", "solid-state", avia(route("campus", 0))),
+            plan("highway-28ms", "highway", car(28.0, SensorKind::Hdl64)),
+            plan("vlp16-car-15ms", "sparse-outdoor", car(15.0, SensorKind::Vlp16)),
+            plan("campus-rolling", "rolling", SimCase { motion: route("campus", 2), ..default.clone() }),
+            plan("warehouse-20hz", "rate", SimCase { rate_hz: 20.0, scans: count(20.0, 1, None), ..default.clone() }),
+        ]);
+    }
+    cases
+}
+
 /// A car on the campus roads from its start (already at speed), HDL-64, outdoor preset, 15 s.
 fn car(speed: f64) -> Recipe {
     Recipe::Sim(SimCase {
@@ -123,9 +211,10 @@ fn shuffled_cases(kitti: &Path, short: Option<usize>) -> Vec<Planned> {
     let kitti_all = Box::new(Recipe::Kitti { dir: kitti.to_owned(), start: 0, every: 1 });
     let shuffle = |of: Box<Recipe>, derive_channels| Recipe::Shuffled { of, seed: 7, derive_channels };
     let warehouse_of = Box::new(warehouse(1, 10.0, short.unwrap_or(150)));
+    let plan = |name: &str, recipe| Planned { name: name.into(), class: "shuffled", part: Part::Tuned, recipe };
     vec![
-        Planned { name: "kitti00-shuffled".into(), class: "shuffled", recipe: shuffle(kitti_all.clone(), true) },
-        Planned { name: "warehouse-shuffled".into(), class: "shuffled", recipe: shuffle(warehouse_of, true) },
-        Planned { name: "kitti00-shuffled-bare".into(), class: "shuffled", recipe: shuffle(kitti_all, false) },
+        plan("kitti00-shuffled", shuffle(kitti_all.clone(), true)),
+        plan("warehouse-shuffled", shuffle(warehouse_of, true)),
+        plan("kitti00-shuffled-bare", shuffle(kitti_all, false)),
     ]
 }

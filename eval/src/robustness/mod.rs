@@ -23,8 +23,8 @@ use std::path::PathBuf;
 
 pub use case::{Case, CaseError, Motion, SimCase, kitti_every, shuffled, simulated};
 pub use kiss::KissConfig;
-pub use matrix::{Planned, Recipe, matrix};
-pub use report::{Row, Table};
+pub use matrix::{Part, Planned, Recipe, matrix};
+pub use report::{Row, Summary, Table};
 pub use run::{HoldCriterion, Outcome, Verdict, judge, run_ours};
 
 /// How the cases are run.
@@ -40,11 +40,17 @@ pub struct RunOptions {
     pub out: Option<PathBuf>,
 }
 
-/// Builds, runs and judges one case; a case that cannot be built or run is a row with the error.
-pub fn run_case(planned: &Planned, options: &RunOptions) -> Row {
+/// Builds, runs and judges one case, its noise drawn from `seed` ([`Planned::seeded`]: the row of
+/// a case that has one draw only, real scans, is its seed-0 run); a case that cannot be built or
+/// run is a row with the error.
+pub fn run_case(planned: &Planned, seed: u64, options: &RunOptions) -> Row {
+    let seeded = planned.seeded(seed);
+    let planned = seeded.as_ref().unwrap_or(planned);
     let failed = |reason: String| Row {
         name: planned.name.clone(),
         class: planned.class.into(),
+        part: planned.part,
+        seed,
         scans: 0,
         ours: Outcome::failed(reason),
         kiss: None,
@@ -53,7 +59,7 @@ pub fn run_case(planned: &Planned, options: &RunOptions) -> Row {
         Ok(case) => case,
         Err(e) => return failed(run::chain(&e)),
     };
-    let written = options.out.as_ref().map(|out| out.join(&case.name));
+    let written = options.out.as_ref().map(|out| out.join(format!("{}-seed-{seed}", case.name)));
     if let Some(dir) = &written
         && let Err(e) = export::write_kitti(&case, dir)
     {
@@ -69,5 +75,5 @@ pub fn run_case(planned: &Planned, options: &RunOptions) -> Row {
         (Some(kiss), Some(dir)) => Some(kiss::run_kiss(kiss, &case, dir, &options.criterion)),
         _ => None,
     };
-    Row { name: case.name, class: case.class, scans: case.scans.len(), ours, kiss }
+    Row { name: case.name, class: case.class, part: planned.part, seed, scans: case.scans.len(), ours, kiss }
 }

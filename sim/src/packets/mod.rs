@@ -92,12 +92,13 @@ pub enum PacketFormat {
 
 impl PacketFormat {
     /// The format a built-in sensor sends; `None` for the HDL-64E-like model, whose packets would
-    /// need a per-laser calibration file to decode.
+    /// need a per-laser calibration file to decode, and for the rosette, whose vendor format is
+    /// not one the edge decodes.
     pub fn of(kind: SensorKind) -> Option<PacketFormat> {
         match kind {
             SensorKind::Vlp16 => Some(PacketFormat::Vlp16),
             SensorKind::Os64 | SensorKind::Os128 => Some(PacketFormat::OusterLegacy),
-            SensorKind::Hdl64 => None,
+            SensorKind::Hdl64 | SensorKind::Avia => None,
         }
     }
 
