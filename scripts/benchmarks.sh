@@ -24,7 +24,8 @@ odometry() {
             [ "${robot%%:*}" = campus ] && preset=outdoor
             "$edge" odometry "sim:$robot" --preset "$preset" --no-loops --seed "$seed" \
                 --out "$out/odometry/$robot-$seed" >/dev/null
-            echo "$robot seed $seed: $(grep -o '"ate_unaligned[^,]*' "$out/odometry/$robot-$seed/stats.json")"
+            echo "$robot seed $seed: $(python3 -c 'import json, sys; print(json.load(open(sys.argv[1]))["ate_rmse_m"])' \
+                "$out/odometry/$robot-$seed/stats.json")"
         done
     done
 }
@@ -39,7 +40,10 @@ packets() {
     "$eval" packets
     python3 scripts/compare_packet_decoders.py
 }
-robustness() { "$eval" robustness --kiss; }
+robustness() {
+    "$eval" robustness --kiss
+    "$eval" robustness --part held-back --seeds 3 --kiss
+}
 loops() { "$eval" loops; }
 posegraph() {
     "$eval" posegraph --write-synthetic "$out/synthetic5000.g2o"
