@@ -3,7 +3,7 @@
 //! graph's figures in [`joint`]), the paper's four systems through the demo ([`report`]), and the
 //! micro-benchmarks of the shared kit: registration ([`registration`]), global registration
 //! ([`global`]), the station's pairwise merge ([`merge`]) and the simulator ([`simulator`]).
-//! Percentiles come from [`cloud::stats`], as the product's own figures do.
+//! The settings page is rendered and checked by [`settings`]. Percentiles come from [`cloud::stats`], as the product's own figures do.
 
 pub mod global;
 pub mod joint;
@@ -12,4 +12,5 @@ pub mod merge;
 pub mod registration;
 pub mod report;
 pub mod robustness;
+pub mod settings;
 pub mod simulator;

@@ -133,8 +133,8 @@ pub(crate) fn median_ms<E>(runs: usize, mut f: impl FnMut() -> Result<(), E>) ->
         result?;
         times.push(cloud::stopwatch::millis(took));
     }
-    times.sort_by(f64::total_cmp);
-    Ok(Timing { median: times[times.len() / 2], min: times[0] })
+    let low = cloud::stats::Low::of(&times);
+    Ok(Timing { median: low.median, min: low.min })
 }
 
 impl fmt::Display for Report {

@@ -85,12 +85,12 @@ const FLAG_REORDERED: u8 = 8;
 /// How to encode: quantisation steps, zstd effort and whether points may be reordered.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CodecConfig {
-    /// Position step in metres; every coordinate decodes within `step / 2`. Default 1 mm.
+    /// Position step in metres; every coordinate decodes within `step / 2`. Default 0.001 (1 mm).
     pub step: f64,
     /// Intensity step in the sensor's unit. Default 1e-3, finer than KITTI's 0.01 reflectance
     /// grid; sensors with integer intensities (0..255) code a little smaller with 1.0, lossless.
     pub intensity_step: f64,
-    /// Time step in seconds. Default 1 µs, in which a robot at 30 m/s moves 0.03 mm.
+    /// Time step in seconds. Default 1e-6 (1 µs), in which a robot at 30 m/s moves 0.03 mm.
     pub time_step: f64,
     /// zstd level. Default 1, at which the codec also narrows zstd's match finder (residual
     /// planes have few long repeats): faster and smaller than zstd's own level 1. Higher levels

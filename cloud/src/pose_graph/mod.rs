@@ -119,7 +119,8 @@ pub struct PoseGraphConfig {
     pub max_iterations: usize,
     /// Stop when an accepted step lowers the cost by less than this fraction. Default 1e-5 (GTSAM).
     pub relative_tolerance: f64,
-    /// ... or by less than this. Default 1e-5 (GTSAM).
+    /// Stop when an accepted step lowers the cost by less than this, absolutely. Default 1e-5
+    /// (GTSAM).
     pub absolute_tolerance: f64,
     /// First damping factor λ. Default 1e-5 (GTSAM).
     pub initial_lambda: f64,

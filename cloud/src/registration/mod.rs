@@ -63,9 +63,11 @@ pub struct RegistrationConfig {
     pub lm_initial_lambda: f64,
     /// λ is divided by this after a step that lowers the cost and multiplied otherwise. Default 10.
     pub lm_lambda_factor: f64,
-    /// Converged when a step rotates less than this, radians... Default 0.1° = 1.745e-3 rad.
+    /// Converged when a step rotates less than this, radians, and translates less than
+    /// `translation_epsilon`. Default 1.745e-3 (0.1°).
     pub rotation_epsilon: f64,
-    /// ...and translates less than this, metres. Default 1e-3 m.
+    /// Converged when a step translates less than this, metres, and rotates less than
+    /// `rotation_epsilon`. Default 1e-3 m.
     pub translation_epsilon: f64,
 }
 

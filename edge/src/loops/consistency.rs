@@ -23,12 +23,13 @@ use serde::{Deserialize, Serialize};
 pub struct ConsistencyConfig {
     /// Translation disagreement allowed without travel (m): registration error. Default 0.3 m.
     pub translation_m: f64,
-    /// ... plus this share of the path travelled between the poses compared. Default 0.02 (2 %,
-    /// twice what the odometry drifts on KITTI).
+    /// Translation disagreement allowed per metre travelled between the poses compared, added to
+    /// `translation_m`. Default 0.02 (2 %, twice what the odometry drifts on KITTI).
     pub drift: f64,
     /// Rotation disagreement allowed without travel (deg). Default 2°.
     pub rotation_deg: f64,
-    /// ... plus this many degrees per metre travelled. Default 0.02 °/m (2° per 100 m).
+    /// Rotation disagreement allowed per metre travelled (deg/m), added to `rotation_deg`.
+    /// Default 0.02 °/m (2° per 100 m).
     pub rotation_drift_deg_per_m: f64,
     /// Loops enter the graph only in a consistent set at least this large. Default 1: the odometry
     /// test is the other member of every set (PCM's odometry consistency); on the simulated

@@ -34,7 +34,8 @@ pub struct FeatureConfig {
     pub max_edges_per_sector: usize,
     /// Two consecutive points farther apart than this (m) are an occlusion candidate. Default 0.3 m.
     pub occlusion_gap: f32,
-    /// ... and an occlusion boundary when their beams are closer than this (rad). Default 0.1.
+    /// An occlusion candidate (see `occlusion_gap`) is a boundary when the two beams are closer
+    /// than this (rad): a jump in range between nearly parallel beams. Default 0.1.
     pub occlusion_angle: f32,
     /// A point whose distance to both ring neighbours exceeds this × range² lies on a surface nearly
     /// parallel to the beam. Default 0.0002 (LOAM).
@@ -91,7 +92,7 @@ pub struct MapConfig {
     pub points_per_voxel: usize,
     /// A new point closer than this (m) to a point of its voxel is not added. Default voxel/4.
     pub min_point_distance: f32,
-    /// Voxels farther than this (m) from the robot are dropped. Default 40 m indoor, 100 m outdoor.
+    /// Voxels farther than this (m) from the robot are dropped (indoor 40, outdoor 100).
     pub radius: f32,
     /// Scans between full rebuilds of the map's search tree (points added in between are searched
     /// through a small tree of their own). Default 10.
@@ -119,18 +120,19 @@ pub struct SolverConfig {
     pub max_neighbour_distance: f32,
     /// A neighbourhood is a line when λ_max > ratio × λ_mid. Default 3 (F-LOAM).
     pub line_ratio: f64,
-    /// ... and when all its points lie within this (m) of the line. Default 0.05 m.
+    /// A line neighbourhood's points must all lie within this (m) of the line. Default 0.05 m.
     pub max_line_deviation: f64,
-    /// ... and when it rises at least this steeply (deg from the sensor's horizontal plane).
+    /// A line neighbourhood must rise at least this steeply (deg from the sensor's horizontal
+    /// plane): flat lines are often a plane's edge seen along the ring.
     /// Default 0° (F-LOAM: every line); the presets use 60° indoor and 30° outdoor, see
     /// [`OdometryConfig::indoor`].
     pub min_line_elevation_deg: f64,
     /// A neighbourhood is a plane when all its points lie within this (m) of the fit. Default 0.05 m
     /// (F-LOAM: 0.2 m, which lets floor-and-box blends through).
     pub max_plane_deviation: f64,
-    /// ... and when it spreads in two directions: λ_mid ≥ this × λ_max. Default 0.05.
+    /// A plane neighbourhood must spread in two directions: λ_mid ≥ this × λ_max. Default 0.05.
     pub plane_spread: f64,
-    /// ... and when it is flat: λ_min ≤ this × (λ_min + λ_mid + λ_max). Default 0.01.
+    /// A plane neighbourhood must be flat: λ_min ≤ this × (λ_min + λ_mid + λ_max). Default 0.01.
     pub max_surface_variation: f64,
     /// Expected spread of a clean plane fit (m), about the range noise: a fit scattering σ off its
     /// plane is weighted n² / (n² + σ²). Default 0.01 m.
@@ -145,17 +147,6 @@ pub struct SolverConfig {
     pub plane_gate: f64,
     /// Huber kernel width on residuals (m). Default 0.1 (F-LOAM).
     pub huber: f64,
-    /// The winning fit of each scan is fitted once more from its own pose with this narrower
-    /// Huber width (m); 0 turns the polish off. F-LOAM's 0.1 m finds the basin, but lets
-    /// neighbourhoods that fit their surface a few centimetres off (girders, box edges, a blend of
-    /// two shelves) count in full and tilt the scan; from the converged pose 0.02 m, about twice
-    /// a clean fit's scatter, leaves them out. As the main kernel 0.02 m loses the hard inputs
-    /// (the robustness matrix's 2 Hz sensor, the car at 20 m/s). Default 0 (off) in both
-    /// presets: at 0.02 m it lowered the unaligned error of 19 of 21 indoor runs (six robots,
-    /// three or four noise seeds; 27 % in sum) but moved the campus robots either way, and the
-    /// demo's door placement of warehouse-small robot 2 with it
-    /// (docs/decisions/narrow-kernel-polish-of-odometry.md).
-    pub polish_huber: f64,
     /// Edge weight w₁ = σ / (σ + s): sharper edges count more. Default s = 0.1 (the edge threshold).
     pub edge_weight_scale: f32,
     /// Plane weight w₂ = s / (σ + s): flatter points count more. Default s = 0.1.
@@ -167,7 +158,8 @@ pub struct SolverConfig {
     pub inner_iterations: usize,
     /// Stop when the update's translation is below this (m). Default 1e-4.
     pub convergence_translation: f64,
-    /// ... and its rotation below this (rad). Default 1e-5.
+    /// Stop when the update's rotation is below this (rad), with its translation below
+    /// `convergence_translation`. Default 1e-5.
     pub convergence_rotation: f64,
     /// Fewer correspondences than this: keep the prediction. Default 30.
     pub min_matches: usize,
@@ -203,7 +195,6 @@ impl Default for SolverConfig {
             plane_noise: 0.01,
             plane_gate: 0.0,
             huber: 0.1,
-            polish_huber: 0.0,
             edge_weight_scale: 0.1,
             plane_weight_scale: 0.1,
             max_iterations: 4,

@@ -124,11 +124,10 @@ pub enum Fit {
     Dense,
 }
 
-/// One start's fit: the estimate, and the compensation and map searches of its last round.
+/// One start's fit: the estimate, and the compensation of its last round.
 struct Fitted {
     estimate: solver::Estimate,
     motion: SweepMotion,
-    searches: solver::Neighbourhoods,
 }
 
 /// Where a scan was found, and from what.
@@ -137,8 +136,6 @@ struct Located {
     estimate: solver::Estimate,
     /// The sweep motion its features were compensated with in its last round.
     motion: SweepMotion,
-    /// The map searches of that round, which a polish from the same pose starts from.
-    searches: solver::Neighbourhoods,
     /// The constant-velocity prediction.
     predicted: Isometry3<f64>,
     /// Where the fine fit started.
@@ -157,9 +154,6 @@ const RECOVERY_MARGIN: f64 = 0.1;
 const SAME_FIT_M: f64 = 0.02;
 /// See [`SAME_FIT_M`].
 const SAME_FIT_RANGE_M: f64 = 10.0;
-/// The most a polish may move a fit, at [`SAME_FIT_RANGE_M`] (m): along a road at 10 m/s a
-/// polish that slid 10-20 cm a scan ended a car 2.8 m off.
-const POLISH_MAX_M: f64 = 0.02;
 
 impl Located {
     /// True when the feature fit measured the pose (matches enough to solve) and is not lost.
@@ -172,7 +166,7 @@ impl Located {
     /// converged to the same pose differ by chance; the prediction's fit is kept then.
     fn keep_better(
         &mut self,
-        Fitted { estimate, motion, searches }: Fitted,
+        Fitted { estimate, motion }: Fitted,
         start: Start,
         margin: f64,
         agreement: impl Fn(&Isometry3<f64>) -> f64,
@@ -181,7 +175,6 @@ impl Located {
         if apart > SAME_FIT_M && agreement(&estimate.pose) > (1.0 + margin) * agreement(&self.estimate.pose) {
             self.estimate = estimate;
             self.motion = motion;
-            self.searches = searches;
             self.start = start;
         }
     }
@@ -289,12 +282,6 @@ impl Odometry {
         if let Some((name, v)) = positive.iter().find(|(_, v)| !(*v > 0.0 && v.is_finite())) {
             return Err(OdometryError::Config(format!("{name} must be positive, got {v}")));
         }
-        let polish = config.solver.polish_huber;
-        if !(polish >= 0.0 && polish.is_finite()) {
-            return Err(OdometryError::Config(format!(
-                "solver.polish_huber must be 0 (off) or positive, got {polish}"
-            )));
-        }
         for (name, map) in [("edge_map", &config.edge_map), ("plane_map", &config.plane_map)] {
             if !(1..=MAX_POINTS_PER_VOXEL).contains(&map.points_per_voxel) || map.max_voxels == 0 {
                 return Err(OdometryError::Config(format!(
@@ -371,9 +358,6 @@ impl Odometry {
         let features_ms = watch.lap_ms();
         let scan_lines = feature_kind == features::FeatureKind::Rings;
         let mut located = self.locate(&raw);
-        if let Some(polished) = self.polish(&raw, &mut located) {
-            located.estimate = polished;
-        }
         if let Some(first) = self.first.take() {
             located.estimate = self.recompensate_first(&first, &raw, located.estimate);
         }
@@ -482,13 +466,12 @@ impl Odometry {
     fn locate(&self, raw: &Features) -> Located {
         if self.frames == 0 {
             let estimate = solver::Estimate::first();
-            let (predicted, motion, searches) =
-                (Isometry3::identity(), SweepMotion::zero(), solver::Neighbourhoods::new(0, 0));
-            return Located { estimate, motion, searches, predicted, start: Start::Prediction, lost: false };
+            let (predicted, motion) = (Isometry3::identity(), SweepMotion::zero());
+            return Located { estimate, motion, predicted, start: Start::Prediction, lost: false };
         }
         let predicted = self.predicted();
-        let Fitted { estimate, motion, searches } = self.estimate(raw, predicted);
-        let mut best = Located { estimate, motion, searches, predicted, start: Start::Prediction, lost: false };
+        let Fitted { estimate, motion } = self.estimate(raw, predicted);
+        let mut best = Located { estimate, motion, predicted, start: Start::Prediction, lost: false };
         // Without a measured velocity (the second scan, after a gap) the coarse start is tried
         // too: the prediction is a guess of no motion.
         let untrusted = self.since_reset < 2;
@@ -695,7 +678,7 @@ impl Odometry {
         // the faster the robot turns. Both are compensated once the fit measured the motion.
         if !self.config.deskew || self.first.is_some() {
             let estimate = solve(&SweepMotion::zero(), predicted);
-            return Fitted { estimate, motion: SweepMotion::zero(), searches };
+            return Fitted { estimate, motion: SweepMotion::zero() };
         }
         let mut motion = self.motion;
         let mut estimate = solve(&motion, predicted);
@@ -708,7 +691,7 @@ impl Odometry {
             motion = measured;
             estimate = solve(&motion, estimate.pose);
         }
-        Fitted { estimate, motion, searches }
+        Fitted { estimate, motion }
     }
 
     /// The features compensated with `motion`, fitted to the maps from `from` (eq. 4).
@@ -723,29 +706,6 @@ impl Odometry {
         let edges = deskew::compensate(&raw.edges, motion);
         let planes = deskew::compensate(&raw.planes, motion);
         solver::estimate(&edges, &planes, &self.edge_map, &self.plane_map, from, config, searches)
-    }
-
-    /// The winning fit fitted once more from its own pose under a narrow kernel
-    /// ([`SolverConfig::polish_huber`]): the wide kernel finds the basin, the narrow one then
-    /// keeps neighbourhoods that fit their surface a few centimetres off (girders, box edges, a
-    /// blend of two shelves) from tilting the scan. Kept only where it stays well conditioned and
-    /// moves the pose by a converged fit's correction ([`POLISH_MAX_M`] at [`SAME_FIT_RANGE_M`]):
-    /// it is a polish, not another search.
-    fn polish(&self, raw: &Features, located: &mut Located) -> Option<solver::Estimate> {
-        let huber = self.config.solver.polish_huber;
-        if huber <= 0.0
-            || located.estimate.iterations == 0
-            || located.lost
-            || located.estimate.degenerate_directions > 0
-            || self.first.is_some()
-            || self.frames < 2
-        {
-            return None;
-        }
-        let config = SolverConfig { huber, ..self.config.solver.clone() };
-        let polished = self.fit(raw, &located.motion, located.estimate.pose, &config, &mut located.searches);
-        let moved = motion_model::displacement(&(located.estimate.pose.inverse() * polished.pose), SAME_FIT_RANGE_M);
-        (polished.degenerate_directions == 0 && moved <= POLISH_MAX_M).then_some(polished)
     }
 
     /// A keyframe when the robot moved or turned enough since the last one (the first scan always is).

@@ -160,7 +160,7 @@ fn time_round_trip(cloud: &PointCloud, config: &CodecConfig, repeat: usize) -> R
     if decoded.len() != cloud.len() {
         bail!("decoded {} points out of {}", decoded.len(), cloud.len());
     }
-    Ok((size, (median(&mut encode_ms), median(&mut decode_ms)), decoded))
+    Ok((size, (median(&encode_ms), median(&decode_ms)), decoded))
 }
 
 /// Largest per-coordinate difference, metres.
@@ -278,7 +278,7 @@ fn totals(modes: &[ModeFigures]) -> Option<ModeFigures> {
     if modes.is_empty() {
         return None;
     }
-    let med = |pick: fn(&ModeFigures) -> f64| median(&mut modes.iter().map(pick).collect::<Vec<_>>());
+    let med = |pick: fn(&ModeFigures) -> f64| median(&modes.iter().map(pick).collect::<Vec<_>>());
     Some(ModeFigures {
         xyz_bytes: modes.iter().map(|m| m.xyz_bytes).sum(),
         intensity_bytes: modes.iter().map(|m| m.intensity_bytes).sum(),

@@ -184,10 +184,9 @@ pub fn run(command: Command) -> Result<()> {
     Ok(())
 }
 
-/// The middle value (the upper one of an even count); sorts `values`.
-fn median(values: &mut [f64]) -> f64 {
-    values.sort_by(f64::total_cmp);
-    values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
+/// The median of `values` (nearest rank, [`cloud::stats::Spread`]'s); NaN when there are none.
+fn median(values: &[f64]) -> f64 {
+    if values.is_empty() { f64::NAN } else { cloud::stats::Spread::of(values).median }
 }
 
 /// The runtime of the commands that run a station or robots in this process.

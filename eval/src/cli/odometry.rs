@@ -45,8 +45,8 @@ impl fmt::Display for OdometryReport {
                 i + 1
             )?;
         }
-        let wall = median(&mut self.runs.iter().map(|r| r.median).collect::<Vec<_>>());
-        let cpu = median(&mut self.runs.iter().map(|r| r.cpu).collect::<Vec<_>>());
+        let wall = median(&self.runs.iter().map(|r| r.median).collect::<Vec<_>>());
+        let cpu = median(&self.runs.iter().map(|r| r.cpu).collect::<Vec<_>>());
         writeln!(f, "median of the runs: {wall:.2} ms per scan (CPU {cpu:.2} ms)")?;
         match self.ate {
             Some(AteRmse { aligned: Some(aligned), unaligned }) => {
@@ -80,12 +80,10 @@ pub fn odometry(scans: &[SourceScan], config: &OdometryConfig, runs: usize) -> R
             let mut odometry = Odometry::new(config.clone())?;
             Ok(pipeline::register(&mut odometry, scans, |_, _| Ok(()))?)
         })?;
-        // `median` sorts: the 95th percentile is then an index away.
-        let mut ms = pass.stats.ms().to_vec();
-        let wall = median(&mut ms);
-        let p95 = ms[(ms.len() * 95 / 100).min(ms.len() - 1)];
-        let cpu = median(&mut pass.cpu_ms.clone());
-        let stages = pass.stats.stages().each_ref().map(|v| median(&mut v.clone()));
+        let spread = cloud::stats::Spread::of(pass.stats.ms());
+        let (wall, p95) = (spread.median, spread.p95);
+        let cpu = median(&pass.cpu_ms);
+        let stages = pass.stats.stages().each_ref().map(|v| median(v));
         report.runs.push(RunFigures { median: wall, p95, cpu, stages });
         report.ate = pipeline::evaluate(&pass.truth, &pass.estimate.poses)?.map(|a| a.ate);
     }

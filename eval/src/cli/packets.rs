@@ -85,7 +85,7 @@ fn figures(path: &Path, repeat: usize) -> Result<CaptureFigures> {
         rotations,
         points,
         sensor_s: last - first,
-        decode_s: median(&mut times),
+        decode_s: median(&times),
     })
 }
 

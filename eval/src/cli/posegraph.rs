@@ -88,7 +88,7 @@ fn measure(
     };
     let ate =
         truth.map(|t| Ok::<_, anyhow::Error>((ate(graph.poses(), t)?, ate(optimised.poses(), t)?))).transpose()?;
-    Ok(Row { name, poses: graph.poses().len(), edges: graph.edges().len(), report, median_ms: median(&mut times), ate })
+    Ok(Row { name, poses: graph.poses().len(), edges: graph.edges().len(), report, median_ms: median(&times), ate })
 }
 
 impl fmt::Display for PosegraphReport {

@@ -100,7 +100,8 @@ pub struct JointConfig {
     /// A registration may move a keyframe at most this far from where (1) put it, metres. Default
     /// 1.0: the rigid merge was checked; more is a slide into a look-alike structure.
     pub max_translation: f64,
-    /// ... and turn it at most this much, degrees. Default 3.
+    /// A registration may turn a keyframe at most this much from where (1) put it, degrees.
+    /// Default 3.
     pub max_rotation_deg: f64,
     /// Least share of the keyframe's points with a correspondence in the submap. Default 0.5.
     pub min_overlap: f64,
@@ -108,7 +109,8 @@ pub struct JointConfig {
     /// metres. Default 0.01: keyframes of two robots on the simulated campus, at their true poses,
     /// less than a metre apart registered 0.2-0.5 cm and 0.03-0.14 deg from the truth.
     pub sigma_m: f64,
-    /// ... and of its rotation, degrees. Default 0.1.
+    /// Deviation of the rotation of an inter-robot edge between keyframes at the same place,
+    /// degrees. Default 0.1.
     pub sigma_deg: f64,
     /// Both deviations grow by this many times themselves for every metre between the two
     /// keyframes: `σ(d) = σ (1 + g d)` (4). Default 0.5 (3 cm and 0.3 deg at 4 m): there,
@@ -123,7 +125,7 @@ pub struct JointConfig {
     /// slid by decimetres; with (4) there, it also dropped 29 of the simulated warehouse-large's
     /// 191 edges, which lay a few centimetres off the rest where the robots' own maps bend.
     pub consistency_sigma_m: f64,
-    /// ... and its rotation, degrees. Default 0.3.
+    /// Deviation of the rotation an edge is given in the consistency check, degrees. Default 0.3.
     pub consistency_sigma_deg: f64,
     /// Two edges between the same robots agree when (3) of [`consistency`] differs by at most this
     /// many deviations. Default 3.

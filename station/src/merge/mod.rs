@@ -108,7 +108,7 @@ pub struct FinishConfig {
     /// The pass may move the refined transform by at most this much, metres (default 0.05: it
     /// starts within a centimetre or two; more is a slide along a weakly constrained direction).
     pub max_translation: f64,
-    /// ... and turn it by at most this much, degrees (default 0.5: the pass corrects hundredths of
+    /// The pass may turn the refined transform by at most this much, degrees (default 0.5: it corrects hundredths of
     /// a degree; a turn about the map origin moves far points while the translation stays small).
     pub max_rotation_deg: f64,
 }
@@ -212,7 +212,8 @@ pub struct MergeConfig {
     /// the fixed count cannot tell it from look-alikes (wrong placements drew 10-14 there);
     /// the free space can: the door's 1.00 against 0.74-0.84.
     pub near_miss_inliers: usize,
-    /// ... and kept only when its acceptance is at least this (default 0.97, stricter than
+    /// Such a near miss (see `near_miss_inliers`) is kept only when its acceptance is at least
+    /// this (default 0.97, stricter than
     /// `min_acceptance`: weaker feature evidence asks for cleaner geometry; true placements
     /// measure 0.98-1.0).
     pub near_miss_acceptance: f64,
