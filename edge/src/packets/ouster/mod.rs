@@ -86,6 +86,8 @@ struct Frames {
     /// Whether the next rotation starts where the last one ended (not at the stream's start or
     /// after a reset), so that the columns before its first are gaps, not a partial start.
     follows_previous: bool,
+    /// Returns of the last rotation closed: the next one's is reserved at once rather than grown.
+    last_returns: usize,
 }
 
 impl Frames {
@@ -100,13 +102,14 @@ impl Frames {
         let ending = if scan.key.init_id == key.init_id { Ending::NextFrame } else { Ending::Reset };
         self.closed = Some(scan.key);
         self.follows_previous = ending == Ending::NextFrame;
+        self.last_returns = scan.returns.len();
         scan.close(ending, window)
     }
 
     /// The rotation of frame `key`, opened by this packet if it is the frame's first.
     fn current(&mut self, key: FrameKey, received: f64, window: &Window) -> &mut Scan {
-        let follows_previous = self.follows_previous;
-        self.scan.get_or_insert_with(|| Scan::new(key, received, follows_previous, window))
+        let (follows_previous, capacity) = (self.follows_previous, self.last_returns);
+        self.scan.get_or_insert_with(|| Scan::new(key, received, follows_previous, window, capacity))
     }
 }
 
@@ -204,23 +207,18 @@ impl Decoder {
     }
 }
 
-/// A return, held until the rotation closes and its earliest column is known.
-#[derive(Clone, Copy, Debug)]
-struct Pending {
-    /// The column's place in the window's order, to sort reordered packets back.
-    order: usize,
-    column_ns: u64,
-    /// Complete but for `time`.
-    point: Return,
-}
-
 /// The rotation in progress.
 #[derive(Debug)]
 struct Scan {
     key: FrameKey,
     stamp: f64,
     follows_previous: bool,
-    points: Vec<Pending>,
+    /// The returns, complete but for their times, which wait for the rotation's earliest column.
+    returns: Vec<Return>,
+    /// Per return, its column's measurement id.
+    return_columns: Vec<u16>,
+    /// Per measurement id, its column's timestamp (ns), once the column came.
+    column_ns: Vec<u64>,
     /// Per measurement id, whether its column came.
     received: Vec<bool>,
     columns: usize,
@@ -230,12 +228,14 @@ struct Scan {
 }
 
 impl Scan {
-    fn new(key: FrameKey, stamp: f64, follows_previous: bool, window: &Window) -> Scan {
+    fn new(key: FrameKey, stamp: f64, follows_previous: bool, window: &Window, capacity: usize) -> Scan {
         Scan {
             key,
             stamp,
             follows_previous,
-            points: Vec::new(),
+            returns: Vec::with_capacity(capacity),
+            return_columns: Vec::with_capacity(capacity),
+            column_ns: vec![0; window.columns_per_frame],
             received: vec![false; window.columns_per_frame],
             columns: 0,
             earliest_ns: u64::MAX,
@@ -247,17 +247,17 @@ impl Scan {
     /// Decodes a column into returns, unless it is invalid, of another frame or already in.
     fn add_column(&mut self, decoder: &Decoder, column: &Column) {
         let Some(measurement_id) = self.accept(decoder, column) else { return };
-        let order = decoder.window.position(measurement_id);
+        self.column_ns[measurement_id] = column.timestamp_ns;
         for (beam, pixel) in decoder.format.pixels(column).enumerate() {
             for echo in decoder.chosen(pixel).into_iter().flatten().filter(|echo| echo.range_mm > 0) {
                 let Some(xyz) = decoder.xyz.point(measurement_id, beam, echo.range_mm) else { continue };
-                let point = Return {
+                self.returns.push(Return {
                     position: xyz,
                     intensity: f32::from(echo.reflectivity),
                     ring: u16::try_from(beam).unwrap_or(u16::MAX),
                     time: 0.0,
-                };
-                self.points.push(Pending { order, column_ns: column.timestamp_ns, point });
+                });
+                self.return_columns.push(column.measurement_id);
             }
         }
     }
@@ -294,18 +294,19 @@ impl Scan {
             + if leading_are_gaps { coverage.before } else { 0 }
             + if trailing_are_gaps { coverage.after } else { 0 };
         let partial = (!leading_are_gaps && coverage.before > 0) || (!trailing_are_gaps && coverage.after > 0);
-        if self.reordered {
-            self.points.sort_by_key(|pending| pending.order);
-        }
         let earliest_ns = self.earliest_ns;
-        let returns = self
-            .points
-            .into_iter()
-            .map(|Pending { column_ns, point, .. }| Return {
-                time: (column_ns.saturating_sub(earliest_ns) as f64 * 1e-9) as f32,
-                ..point
-            })
-            .collect();
+        for (point, &id) in self.returns.iter_mut().zip(&self.return_columns) {
+            let column_ns = self.column_ns[usize::from(id)];
+            point.time = (column_ns.saturating_sub(earliest_ns) as f64 * 1e-9) as f32;
+        }
+        let returns = if self.reordered {
+            // Back into the window's order (stable: a column's returns keep theirs).
+            let mut order: Vec<usize> = (0..self.returns.len()).collect();
+            order.sort_by_key(|&i| window.position(usize::from(self.return_columns[i])));
+            order.into_iter().map(|i| self.returns[i]).collect()
+        } else {
+            self.returns
+        };
         Some(Rotation { returns, stamp: self.stamp, gaps, partial })
     }
 }

@@ -83,13 +83,15 @@ impl Current {
         let partial = !(ended_at_cut && self.after_cut.is_some());
         let mut packets = self.packets;
         packets.sort_by(|a, b| a.packet.start.total_cmp(&b.packet.start));
-        let returns = packets
-            .iter()
-            .flat_map(|placed| {
-                let offset = placed.packet.start - self.earliest_start;
-                placed.packet.returns.iter().map(move |r| Return { time: (offset + f64::from(r.time)) as f32, ..*r })
-            })
-            .collect();
+        // Sized at once: collecting the packets' returns one by one grew and copied the rotation
+        // a dozen times.
+        let mut returns = Vec::with_capacity(packets.iter().map(|placed| placed.packet.returns.len()).sum());
+        for placed in &packets {
+            let offset = placed.packet.start - self.earliest_start;
+            returns.extend(
+                placed.packet.returns.iter().map(|r| Return { time: (offset + f64::from(r.time)) as f32, ..*r }),
+            );
+        }
         Rotation { returns, stamp: self.received, gaps, partial }
     }
 
