@@ -33,8 +33,9 @@ pub enum MetadataError {
 
 /// The most beams a sensor has (128 today); more means the metadata is not a sensor's.
 const MAX_BEAMS: usize = 256;
-/// Measurement ids are 16 bits.
-const MAX_COLUMNS_PER_FRAME: usize = 1 << 16;
+/// The widest frame of any sensor mode (4096x5); measurement ids would allow 65,536, but the
+/// decoder's per-pixel table of such a frame would be hundreds of megabytes made of a mistake.
+const MAX_COLUMNS_PER_FRAME: usize = 4096;
 /// A packet is one UDP datagram.
 const MAX_PACKET_BYTES: usize = 65_535;
 
@@ -420,6 +421,18 @@ mod tests {
             FLAT.replace("\"columns_per_frame\": 512", "\"columns_per_frame\": 512, \"udp_profile_lidar\": \"X\"");
         assert!(
             matches!(Metadata::from_json(&profile), Err(MetadataError::Invalid { field, .. }) if field == "data_format.udp_profile_lidar")
+        );
+    }
+
+    #[test]
+    fn a_frame_wider_than_any_sensor_mode_is_refused() {
+        let mut metadata = Metadata::from_json(FLAT).unwrap();
+        metadata.columns_per_frame = 4096;
+        metadata.column_window = [0, 4095];
+        assert_eq!(metadata.validate(), Ok(()));
+        metadata.columns_per_frame = 8192;
+        assert!(
+            matches!(metadata.validate(), Err(MetadataError::Invalid { field, .. }) if field == "columns_per_frame")
         );
     }
 
