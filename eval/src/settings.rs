@@ -36,10 +36,9 @@ pub struct FieldDoc {
 pub fn field_docs(sources: &[Source]) -> HashMap<FieldKey, FieldDoc> {
     let mut docs = HashMap::new();
     for source in sources {
-        let lines: Vec<&str> = source.text.lines().collect();
         let mut owner: Option<String> = None;
         let mut doc: Vec<&str> = Vec::new();
-        for (index, raw) in lines.iter().enumerate() {
+        for (index, raw) in source.text.lines().enumerate() {
             let line = raw.trim();
             if let Some(name) = struct_opening(line) {
                 owner = Some(name.to_string());
@@ -94,7 +93,7 @@ enum Item {
     Block { head: String, open: char, items: Vec<Item> },
 }
 
-fn parse_items(lines: &mut std::iter::Peekable<std::str::Lines>) -> Vec<Item> {
+fn parse_items(lines: &mut std::str::Lines) -> Vec<Item> {
     let mut items = Vec::new();
     while let Some(raw) = lines.next() {
         let line = raw.trim().trim_end_matches(',');
@@ -136,7 +135,7 @@ fn compact(item: &Item) -> String {
 /// A field holding another struct whose fields are documented in `docs` (directly or inside
 /// `Some(..)`) is followed into; any other value is one setting.
 pub fn settings(debug: &str, docs: &HashMap<FieldKey, FieldDoc>) -> Vec<Setting> {
-    let items = parse_items(&mut debug.lines().peekable());
+    let items = parse_items(&mut debug.lines());
     let mut out = Vec::new();
     if let Some(Item::Block { head, items, .. }) = items.first() {
         walk(head, items, "", docs, &mut out);
@@ -181,8 +180,8 @@ fn walk(owner: &str, items: &[Item], prefix: &str, docs: &HashMap<FieldKey, Fiel
     }
 }
 
-/// A configuration on the page: a title, and its settings in each named preset (the same fields
-/// in each, as one type renders them).
+/// A configuration on the page: a title, and its settings in each named preset (one type, though an
+/// optional part may be set in one preset only; the table lines them up by path).
 pub struct Section<'a> {
     pub title: &'a str,
     /// What the configuration is and where it is chosen (one paragraph).
@@ -343,8 +342,7 @@ pub fn check_quoted_defaults(
         }
         // A type used at several paths of one preset (the merge's fine and coarse pairwise
         // settings) is right when one of them has the quoted value.
-        let mut names: Vec<&String> = values.iter().map(|(name, _)| name).collect();
-        names.dedup();
+        let names: std::collections::BTreeSet<&String> = values.iter().map(|(name, _)| name).collect();
         for name in names.into_iter().filter(|name| *name != "default") {
             let Some(quoted) = quoted_after(&doc.doc, name) else { continue };
             let in_preset: Vec<&String> = values.iter().filter(|(n, _)| n == name).map(|(_, v)| v).collect();
@@ -381,7 +379,7 @@ fn quoted_after(doc: &str, word: &str) -> Option<String> {
             let after = &rest[at + pattern.len()..];
             // "5,000": a comma between digits groups thousands.
             let chars: Vec<char> = after.chars().collect();
-            let token: String = chars
+            let taken = chars
                 .iter()
                 .enumerate()
                 .take_while(|&(i, c)| {
@@ -389,12 +387,11 @@ fn quoted_after(doc: &str, word: &str) -> Option<String> {
                         || matches!(c, '.' | '-' | '_' | '`')
                         || (matches!(c, ',' | ' ') && thousands(&chars, i))
                 })
-                .map(|(_, c)| *c)
-                .filter(|c| !matches!(c, ',' | ' '))
-                .collect();
+                .count();
+            let token: String = chars[..taken].iter().filter(|c| !matches!(c, ',' | ' ')).collect();
             let token = token.trim_matches('`').trim_end_matches('.').to_string();
             // "2 × voxel = 0.8": a factor, not the value.
-            let next = chars.get(token.len()..).and_then(|rest| rest.iter().find(|c| **c != ' '));
+            let next = chars[taken..].iter().find(|c| **c != ' ');
             if matches!(next, Some('×' | '*')) {
                 rest = after;
                 continue;
@@ -590,6 +587,7 @@ pub struct InnerConfig {
         assert_eq!(quoted_after("Cap (default 20 000; each", "default").as_deref(), Some("20000"));
         assert_eq!(quoted_after("Samples (default 5,000).", "default").as_deref(), Some("5000"));
         assert_eq!(quoted_after("Radius (default 2 × voxel = 0.8, as", "default"), None);
+        assert_eq!(quoted_after("Reach (default 1,000 × voxel)", "default"), None);
         assert_eq!(quoted_after("Inliers (default 10, 0 turns it off)", "default").as_deref(), Some("10"));
         assert_eq!(quoted_after("Voxel (outdoor 0.4, indoor 0.1).", "indoor").as_deref(), Some("0.1"));
         assert_eq!(quoted_after("Voxel (default [`Other::x`])", "default"), None);

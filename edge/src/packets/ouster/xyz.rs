@@ -9,8 +9,8 @@
 //! As ouster-sdk's `make_xyz_lut` does, the table holds each pixel's direction and offset already
 //! moved into the sensor frame and scaled to metres, so that a point is three multiply-adds:
 //! `xyz = direction * range + offset`. For an OS-128 at 1024 columns it is 6 MB, built once per
-//! assembler; the factored form (a table per column and one per beam, combined per point) needed
-//! four times the arithmetic per point in the decoder's hottest loop.
+//! assembler; a table per column and one per beam would be small, but combining them costs a
+//! rotation and the angle sums for every point, in the decoder's hottest loop.
 
 use std::f64::consts::TAU;
 
@@ -40,6 +40,7 @@ impl XyzLut {
         let beams = metadata.beam_azimuth_angles.len().min(metadata.beam_altitude_angles.len());
         let beam = &metadata.beam_to_lidar_transform;
         let (beam_x_mm, beam_z_mm) = (beam[3], beam[11]);
+        // ouster-sdk takes the x offset itself (sign included) when the beam origin is level.
         let beam_distance_mm = if beam_z_mm == 0.0 { beam_x_mm } else { beam_x_mm.hypot(beam_z_mm) };
         let t = &metadata.lidar_to_sensor_transform;
         let rotation = [[t[0], t[1], t[2]], [t[4], t[5], t[6]], [t[8], t[9], t[10]]];
