@@ -40,6 +40,26 @@ packets() {
     "$eval" packets
     python3 scripts/compare_packet_decoders.py
 }
+live() {
+    local d="$out/live" port=47123 router=tcp/127.0.0.1:47447
+    rm -rf "$d" && mkdir -p "$d"
+    ./target/release/emr-station run --fleet live --data-dir "$d/station" --listen "$router" &
+    local station=$!
+    sleep 3
+    "$edge" run --fleet live --robot 1 --source "udp:127.0.0.1:$port" --max-frames 599 --exit-when-done \
+        --summary "$d/live.json" --poses "$d/live.txt" --connect "$router" &
+    local receiver=$!
+    sleep 3
+    "$edge" sim --scenario warehouse-small --frames 600 --send "127.0.0.1:$port" --rate realtime --pcap "$d/vlp16.pcap"
+    wait "$receiver"
+    "$edge" run --fleet live --robot 1 --source "pcap:$d/vlp16.pcap" --rate max --max-frames 599 --exit-when-done \
+        --summary "$d/files.json" --poses "$d/files.txt" --connect "$router"
+    kill "$station"
+    "$edge" odometry sim:warehouse-small:1 --max-frames 599 --out "$d/truth" >/dev/null
+    cat "$d/live.json" "$d/files.json"
+    "$edge" eval --gt "$d/truth/poses_gt_kitti.txt" --est "$d/live.txt"
+    "$edge" eval --gt "$d/truth/poses_gt_kitti.txt" --est "$d/files.txt"
+}
 robustness() {
     "$eval" robustness --kiss
     "$eval" robustness --part held-back --seeds 3 --kiss
@@ -85,7 +105,7 @@ hosts() {
     EMR_ZENOHD=$(bash deploy/zenohd.sh) cargo nextest run -p tests --test hosts --no-capture
 }
 
-sections=(codec odometry kiss packets robustness loops posegraph gicp merge demo joint load report sim hosts)
+sections=(codec odometry kiss packets live robustness loops posegraph gicp merge demo joint load report sim hosts)
 case "${1:-}" in
 --list) printf '%s\n' "${sections[@]}"; exit 0 ;;
 --only) sections=("$2") ;;

@@ -71,6 +71,7 @@ fn start_edge(name: &str, robot: u32, port: u16, dir: &Path) -> Process {
 fn robot_args(robot: u32, port: u16, dir: &Path, start_at: usize) -> Vec<String> {
     let mut args = edge_args(FLEET, SCENARIO, robot, FRAMES - start_at, port, &summary_path(dir, robot));
     args.extend(["--state".into(), state_path(dir, robot).display().to_string()]);
+    args.extend(["--poses".into(), poses_path(dir, robot).display().to_string()]);
     if start_at > 0 {
         args.extend(["--start-at".into(), start_at.to_string()]);
     }
@@ -79,6 +80,24 @@ fn robot_args(robot: u32, port: u16, dir: &Path, start_at: usize) -> Vec<String>
 
 fn summary_path(dir: &Path, robot: u32) -> std::path::PathBuf {
     dir.join(format!("edge{robot}-summary.json"))
+}
+
+/// The trajectory an edge writes when its source ends (`--poses`).
+fn poses_path(dir: &Path, robot: u32) -> std::path::PathBuf {
+    dir.join(format!("edge{robot}-poses.txt"))
+}
+
+/// Each edge's trajectory: a pose per scan, as far from the truth as its odometry is, unaligned
+/// (both start at the first sweep's pose).
+fn assert_trajectories_follow_the_truth(dir: &Path) {
+    for robot in 1..=2 {
+        let text = std::fs::read_to_string(poses_path(dir, robot)).expect("the edge's trajectory");
+        let poses = cloud::trajectory::Trajectory::parse_kitti(&text).expect("a KITTI trajectory").poses;
+        assert_eq!(poses.len(), FRAMES, "robot {robot}: a pose per scan");
+        let ate = cloud::trajectory::ate(&true_trajectory(SCENARIO, robot, FRAMES), &poses, false).unwrap();
+        println!("robot {robot}: trajectory {:.1} cm from the truth (ATE, unaligned)", ate.rmse * 100.0);
+        assert!(ate.rmse < MAX_PLACEMENT_ERROR_M, "robot {robot}: trajectory ATE {:.3} m", ate.rmse);
+    }
 }
 
 /// Both robots merged, the non-reference one within 10 cm and 1 degree of the truth.
@@ -97,6 +116,7 @@ fn two_edges_and_a_station_merge_the_warehouse() {
     let mut fleet = Fleet::start("plain");
     let observer = Observer::connect(FLEET, fleet.port);
     let keyframes = fleet.wait_edges();
+    assert_trajectories_follow_the_truth(fleet.dir.path());
     let map = fleet.wait_complete_map(&observer, &keyframes);
     assert_placed_like_the_truth(&map);
     assert!(

@@ -1,11 +1,12 @@
 //! `emr-edge run`: the robot's network service.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 use bus::NetworkArgs;
 use clap::ValueEnum;
+use cloud::trajectory::Trajectory;
 use edge::args::PacketArgs;
 use edge::node::state_dir::StateDir;
 use edge::node::{self, NodeConfig, NodeSummary, Rate, SourceEnd};
@@ -62,10 +63,15 @@ pub struct RunArgs {
     #[arg(long)]
     exit_when_done: bool,
     /// When the source ends, write {"robot", "session", "frames", "keyframes", "published_bytes",
-    /// "loops", "posegraph_revision"} here (JSON):
+    /// "loops", "posegraph_revision", "source_losses"} here (JSON):
     /// how scripts and the system tests learn that a robot is done while it keeps serving.
     #[arg(long, value_name = "FILE")]
     summary: Option<PathBuf>,
+    /// When the source ends, write each registered scan's pose here, one KITTI line per scan
+    /// (sensor at the sweep end, in this session's odometry frame, with the robot's own loop
+    /// corrections applied): the trajectory `emr-edge eval --est` compares with a reference.
+    #[arg(long, value_name = "FILE")]
+    poses: Option<PathBuf>,
     #[command(flatten)]
     network: NetworkArgs,
     /// ROS 2: the odometry (`/emr/FLEET/robotN/odometry`) and keyframe clouds
@@ -121,7 +127,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         odometry,
         loops: !args.no_loops,
         linger: !args.exit_when_done,
-        on_source_end: args.summary.clone().map(|path| summary_writer(path, robot, session)),
+        on_source_end: source_end(args.summary.clone(), args.poses.clone(), robot, session),
         ros2_domain: args.ros2.publish_domain(),
         ..NodeConfig::new(args.fleet.clone(), robot, source)
     };
@@ -155,19 +161,34 @@ pub fn run(args: RunArgs) -> Result<()> {
     Ok(())
 }
 
-/// Writes the node's summary to `path` atomically (a reader never sees half a file).
-fn summary_writer(path: PathBuf, robot: u32, session: u64) -> SourceEnd {
-    SourceEnd(Arc::new(move |s: &NodeSummary| {
-        let json = serde_json::json!({
-            "robot": robot, "session": session, "frames": s.frames, "keyframes": s.keyframes, "published_bytes": s.published_bytes,
-            "loops": s.loops, "posegraph_revision": s.posegraph_revision, "source_losses": s.source_losses,
-        });
-        let partial = path.with_extension("partial");
-        let written = std::fs::write(&partial, json.to_string()).and_then(|()| std::fs::rename(&partial, &path));
-        if let Err(e) = written {
-            tracing::error!("cannot write the summary {}: {e}", path.display());
+/// Writes the node's summary and its trajectory where asked, when the source ends.
+fn source_end(summary: Option<PathBuf>, poses: Option<PathBuf>, robot: u32, session: u64) -> Option<SourceEnd> {
+    if summary.is_none() && poses.is_none() {
+        return None;
+    }
+    Some(SourceEnd(Arc::new(move |s: &NodeSummary| {
+        // The trajectory first: a script that waits for the summary then finds both.
+        if let Some(path) = &poses {
+            let trajectory = Trajectory { poses: s.corrected_poses(), stamps: Some(s.stamps.clone()) };
+            write_atomically(path, "trajectory", &trajectory.to_kitti());
         }
-    }))
+        if let Some(path) = &summary {
+            let json = serde_json::json!({
+                "robot": robot, "session": session, "frames": s.frames, "keyframes": s.keyframes, "published_bytes": s.published_bytes,
+                "loops": s.loops, "posegraph_revision": s.posegraph_revision, "source_losses": s.source_losses,
+            });
+            write_atomically(path, "summary", &json.to_string());
+        }
+    })))
+}
+
+/// Writes `text` to `path` atomically (a reader never sees half a file).
+fn write_atomically(path: &Path, what: &str, text: &str) {
+    let partial = path.with_extension("partial");
+    let written = std::fs::write(&partial, text).and_then(|()| std::fs::rename(&partial, path));
+    if let Err(e) = written {
+        tracing::error!("cannot write the {what} {}: {e}", path.display());
+    }
 }
 
 /// The robot id: as given, or the simulated robot's, which a given id must match.
