@@ -37,7 +37,7 @@ kiss() {
 }
 packets() {
     "$edge" convert "$data/lidar_packets/vlp16.pcap" --out "$out/vlp16"
-    "$eval" packets
+    "$eval" packets --repeat 400
     python3 scripts/compare_packet_decoders.py
 }
 live() {

@@ -12,7 +12,7 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError, sync
 use std::thread::JoinHandle;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use crate::packets::{Assembler, Rotation};
+use crate::packets::{Assembler, Return, Rotation};
 use crate::recording::PacketDecoder;
 
 /// Rotations decoded and not yet taken: enough to ride out one slow scan of the odometry, few
@@ -59,6 +59,8 @@ struct Counters {
 pub struct LiveSensor {
     address: SocketAddr,
     rotations: Receiver<LiveRotation>,
+    /// Returns of rotations the caller is done with, back to the receiving thread.
+    give_back: SyncSender<Vec<Return>>,
     counters: Arc<Counters>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
@@ -78,6 +80,7 @@ impl LiveSensor {
         socket.set_read_timeout(Some(POLL))?;
         let address = socket.local_addr()?;
         let (sender, rotations) = sync_channel(QUEUE);
+        let (give_back, given_back) = sync_channel(1);
         let counters = Arc::new(Counters::default());
         let stop = Arc::new(AtomicBool::new(false));
         let receiver = Receiving {
@@ -85,12 +88,13 @@ impl LiveSensor {
             decoder: PacketDecoder::new(assembler, None),
             port: address.port(),
             sender,
+            given_back,
             counters: counters.clone(),
             stop: stop.clone(),
             dropped_since: 0,
         };
         let thread = std::thread::Builder::new().name("lidar-udp".into()).spawn(move || receiver.run())?;
-        Ok(LiveSensor { address, rotations, counters, stop, thread: Some(thread) })
+        Ok(LiveSensor { address, rotations, give_back, counters, stop, thread: Some(thread) })
     }
 
     /// The bound address (with the port the system chose, if 0 was asked for).
@@ -101,6 +105,12 @@ impl LiveSensor {
     /// The next rotation, waiting up to `timeout`; `Err(Timeout)` when none came.
     pub fn next_rotation(&self, timeout: Duration) -> Result<LiveRotation, RecvTimeoutError> {
         self.rotations.recv_timeout(timeout)
+    }
+
+    /// Gives a rotation's returns back to the receiving thread, which writes the next rotation
+    /// into them ([`Assembler::recycle`]); dropped if it still holds one.
+    pub fn recycle(&self, returns: Vec<Return>) {
+        let _ = self.give_back.try_send(returns);
     }
 
     /// What the receiving thread counted so far.
@@ -131,6 +141,7 @@ struct Receiving {
     /// The bound port: every datagram the socket gives was sent to it.
     port: u16,
     sender: SyncSender<LiveRotation>,
+    given_back: Receiver<Vec<Return>>,
     counters: Arc<Counters>,
     stop: Arc<AtomicBool>,
     dropped_since: usize,
@@ -149,6 +160,9 @@ impl Receiving {
                 }
             };
             self.counters.datagrams.fetch_add(1, Ordering::Relaxed);
+            if let Ok(returns) = self.given_back.try_recv() {
+                self.decoder.recycle(returns);
+            }
             let rotation = self.decoder.push(self.port, &buffer[..len], now());
             self.counters.undecoded.store(self.decoder.undecoded, Ordering::Relaxed);
             if let Some(rotation) = rotation
@@ -167,7 +181,8 @@ impl Receiving {
                 self.dropped_since = 0;
                 true
             }
-            Err(TrySendError::Full(_)) => {
+            Err(TrySendError::Full(dropped)) => {
+                self.decoder.recycle(dropped.rotation.returns);
                 self.dropped_since += 1;
                 self.counters.dropped.fetch_add(1, Ordering::Relaxed);
                 true

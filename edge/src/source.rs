@@ -474,7 +474,7 @@ fn live_scan(
     let live = wait_live(&what, interrupt, |t| sensor.next_rotation(t), done)?;
     let index = *next;
     *next += 1;
-    Some(SourceScan {
+    let scan = SourceScan {
         cloud: recording::rotation_cloud(&live.rotation),
         stamp: live.rotation.stamp,
         index,
@@ -482,7 +482,9 @@ fn live_scan(
         gaps: live.rotation.gaps,
         partial: live.rotation.partial,
         dropped_before: live.dropped_before,
-    })
+    };
+    sensor.recycle(live.rotation.returns);
+    Some(scan)
 }
 
 impl Ros2Scans {

@@ -394,6 +394,36 @@ fn check_whole_frame(profile: Profile, choice: ReturnChoice) {
     assert_same_returns(&rotation.returns, &expected_returns(profile, choice, 0..COLUMNS), 0.0);
 }
 
+/// Rotations written into returns given back (as a live source gives back each rotation once it
+/// made its cloud) hold exactly their own returns, nothing of the earlier rotation. A rotation
+/// closes on the next frame's first packet, which opens the next rotation at once, so the returns
+/// of a rotation hold the one after the next.
+#[test]
+fn a_rotation_given_back_holds_a_later_one_and_nothing_of_its_own() {
+    let profile = Profile::Rng19Rfl8Sig16Nir16;
+    let mut assembler = OusterAssembler::new(metadata(profile), ReturnChoice::First);
+    let expected = expected_returns(profile, ReturnChoice::First, 0..COLUMNS);
+    let mut given_back = Vec::new();
+    for frame_id in 7..12u16 {
+        let mut packets = frame(profile, frame_id);
+        packets.push(packet(profile, frame_id + 1, 0, all_valid));
+        let [rotation] = &mut push_all(&mut assembler, &packets, f64::from(frame_id))[..] else {
+            panic!("frame {frame_id}: not one rotation")
+        };
+        assert_same_returns(&rotation.returns, &expected, 0.0);
+        if given_back.len() >= 2 {
+            let two_before = given_back[given_back.len() - 2];
+            assert_eq!(rotation.returns.as_ptr(), two_before, "frame {frame_id}: not in the returns given back");
+        }
+        // Garbage where a later rotation will be written: it must not survive.
+        let mut returns = std::mem::take(&mut rotation.returns);
+        returns.iter_mut().for_each(|r| r.position = [f32::NAN; 3]);
+        returns.push(Return { position: [1.0; 3], intensity: 0.0, ring: 0, time: 0.0 });
+        given_back.push(returns.as_ptr());
+        assembler.recycle(returns);
+    }
+}
+
 #[test]
 fn legacy_points_follow_the_xyzlut_equations() {
     check_whole_frame(Profile::Legacy, ReturnChoice::First);

@@ -134,6 +134,30 @@ fn check_capture(name: &str, model: Model, expected_partial: &[bool]) {
     assert_eq!(decoded[0].stamp, first_data.0);
 }
 
+/// Rotations written into the returns of the one before (given back as a live source does) are
+/// the rotations decoded into fresh memory, nothing of the earlier rotation left in them.
+#[test]
+fn a_rotation_given_back_holds_the_next_one_and_nothing_of_its_own() {
+    let payloads = udp_payloads(&testkit::shared_data("lidar_packets/vlp16.pcap"));
+    let fresh = rotations(&mut VelodyneAssembler::new(VelodyneOptions::default()).unwrap(), &payloads);
+    let mut assembler = VelodyneAssembler::new(VelodyneOptions::default()).unwrap();
+    let (mut recycled, mut given_back) = (Vec::new(), None);
+    for (received, payload) in &payloads {
+        if let Some(rotation) = assembler.push(payload, *received).unwrap() {
+            recycled.push(rotation.clone());
+            let mut returns = rotation.returns;
+            returns.iter_mut().for_each(|r| r.position = [f32::NAN; 3]);
+            given_back = Some(returns.as_ptr());
+            assembler.recycle(returns);
+        }
+    }
+    let last = assembler.finish().expect("the capture's unfinished rotation");
+    assert_eq!(Some(last.returns.as_ptr()), given_back, "the last rotation not in the returns given back");
+    recycled.push(last);
+    assert!(fresh.len() >= 2, "the capture holds {} rotations", fresh.len());
+    assert_eq!(recycled, fresh);
+}
+
 #[test]
 fn vlp16_capture_matches_velodyne_decoder() {
     // One whole turn from the first packet, then the capture's unfinished one.

@@ -368,13 +368,13 @@ pub fn sweep_pose(scenario: &str, robot: u32, frame: usize) -> Isometry3<f64> {
     Simulator::new(scenario, robot as usize - 1, SimConfig::default()).expect("simulator").ground_truth(frame)
 }
 
-/// The true poses of `robot`'s first `frames` sweeps, each in the frame of its first sweep (the
-/// frame its odometry starts in).
-pub fn true_trajectory(scenario: &str, robot: u32, frames: usize) -> Vec<Isometry3<f64>> {
+/// The true poses of `robot`'s sweeps `start..end`, each in the frame of sweep `start` (the frame
+/// its odometry starts in when it starts there).
+pub fn true_trajectory(scenario: &str, robot: u32, start: usize, end: usize) -> Vec<Isometry3<f64>> {
     let scenario = Scenario::by_name(scenario).expect("scenario");
     let sim = Simulator::new(scenario, robot as usize - 1, SimConfig::default()).expect("simulator");
-    let origin = sim.ground_truth(0).inverse();
-    (0..frames).map(|k| origin * sim.ground_truth(k)).collect()
+    let origin = sim.ground_truth(start).inverse();
+    (start..end).map(|k| origin * sim.ground_truth(k)).collect()
 }
 
 /// The simulator's sweep period, seconds: scan `k` is stamped `k` periods.

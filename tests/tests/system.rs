@@ -8,6 +8,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use nalgebra::Isometry3;
 use prost::Message;
 use proto::{CompressedCloud, GlobalMap, Keyframe, Pose, StationStatus, Timestamp};
 use tests::*;
@@ -87,14 +88,19 @@ fn poses_path(dir: &Path, robot: u32) -> std::path::PathBuf {
     dir.join(format!("edge{robot}-poses.txt"))
 }
 
+/// The trajectory an edge wrote when its source ended.
+fn trajectory(dir: &Path, robot: u32) -> Vec<Isometry3<f64>> {
+    let text = std::fs::read_to_string(poses_path(dir, robot)).expect("the edge's trajectory");
+    cloud::trajectory::Trajectory::parse_kitti(&text).expect("a KITTI trajectory").poses
+}
+
 /// Each edge's trajectory: a pose per scan, as far from the truth as its odometry is, unaligned
 /// (both start at the first sweep's pose).
 fn assert_trajectories_follow_the_truth(dir: &Path) {
     for robot in 1..=2 {
-        let text = std::fs::read_to_string(poses_path(dir, robot)).expect("the edge's trajectory");
-        let poses = cloud::trajectory::Trajectory::parse_kitti(&text).expect("a KITTI trajectory").poses;
+        let poses = trajectory(dir, robot);
         assert_eq!(poses.len(), FRAMES, "robot {robot}: a pose per scan");
-        let ate = cloud::trajectory::ate(&true_trajectory(SCENARIO, robot, FRAMES), &poses, false).unwrap();
+        let ate = cloud::trajectory::ate(&true_trajectory(SCENARIO, robot, 0, FRAMES), &poses, false).unwrap();
         println!("robot {robot}: trajectory {:.1} cm from the truth (ATE, unaligned)", ate.rmse * 100.0);
         assert!(ate.rmse < MAX_PLACEMENT_ERROR_M, "robot {robot}: trajectory ATE {:.3} m", ate.rmse);
     }
@@ -220,6 +226,24 @@ fn killed_station_and_edge_lose_no_keyframe() {
         if dt >= MAX_SESSION_ERROR_M || dr >= MAX_SESSION_ERROR_DEG {
             off.push(line);
         }
+    }
+    // What of the restarted session's error is its own map's: where a perfect rigid merge of the
+    // two trajectories' maps would place it (each map off the truth by its best rigid fit).
+    let fit = |robot: u32, start: usize| {
+        cloud::trajectory::map_fit(&true_trajectory(SCENARIO, robot, start, FRAMES), &trajectory(&dir, robot)).unwrap()
+    };
+    if reference == (1, first.session) {
+        let true_placement = origin.inverse() * sweep_pose(SCENARIO, 2, reached);
+        let floor = fit(1, 0).inverse() * true_placement * fit(2, reached);
+        let (floor_m, floor_deg) = difference(&floor, &true_placement);
+        let (merge_m, merge_deg) = difference(&session_placement(&map, 2, restarted.session), &floor);
+        println!(
+            "robot 2 session {}: its rigid floor {:.1} cm, {floor_deg:.3} deg from the truth; placed {:.1} cm, \
+             {merge_deg:.3} deg from that floor",
+            restarted.session,
+            floor_m * 100.0,
+            merge_m * 100.0
+        );
     }
     // Robot 2's first session is in the odometry frame of the calm run's robot 2: it sits where
     // that one did relative to robot 1.

@@ -17,7 +17,7 @@ use super::capture::Capture;
 use super::{RawScan, RecordingErrorKind};
 use crate::packets::ouster::{Metadata, OusterAssembler};
 use crate::packets::velodyne::{Calibration, Model, VelodyneAssembler, VelodyneOptions};
-use crate::packets::{Assembler, PacketError, ReturnChoice, Rotation};
+use crate::packets::{Assembler, PacketError, Return, ReturnChoice, Rotation};
 
 /// How to decode the packets of a capture or a live sensor.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -111,6 +111,11 @@ impl PacketDecoder {
     pub fn finish(&mut self) -> Option<Rotation> {
         self.assembler.finish()
     }
+
+    /// Gives a rotation's returns back for the next rotation ([`Assembler::recycle`]).
+    pub fn recycle(&mut self, returns: Vec<Return>) {
+        self.assembler.recycle(returns);
+    }
 }
 
 /// A rotation as a cloud with intensity, ring and per-point time.
@@ -162,13 +167,15 @@ impl PacketScans {
     fn scan_of(&mut self, rotation: Rotation) -> RawScan {
         let index = self.index;
         self.index += 1;
-        RawScan {
+        let scan = RawScan {
             cloud: rotation_cloud(&rotation),
             stamp: rotation.stamp,
             index,
             dropped: 0,
             gaps: rotation.gaps,
             partial: rotation.partial,
-        }
+        };
+        self.decoder.recycle(rotation.returns);
+        scan
     }
 }

@@ -29,7 +29,7 @@ mod xyz;
 pub use metadata::{Metadata, MetadataError};
 pub use profile::Profile;
 
-use super::{Assembler, PacketError, Return, ReturnChoice, Rotation};
+use super::{Assembler, PacketError, Return, ReturnChoice, Rotation, reuse};
 use profile::{Column, Echo, LEGACY_IMU_PACKET_BYTES, PacketFormat, Pixel};
 use xyz::XyzLut;
 
@@ -73,7 +73,11 @@ impl Assembler for OusterAssembler {
     fn finish(&mut self) -> Option<Rotation> {
         let scan = std::mem::take(&mut self.frames).scan?;
         let window = &self.decoder.as_ref().ok()?.window;
-        scan.close(Ending::StreamEnd, window).filter(|rotation| !rotation.returns.is_empty())
+        scan.close(Ending::StreamEnd, window, &mut Vec::new()).filter(|rotation| !rotation.returns.is_empty())
+    }
+
+    fn recycle(&mut self, returns: Vec<Return>) {
+        self.frames.spare = returns;
     }
 }
 
@@ -88,6 +92,10 @@ struct Frames {
     follows_previous: bool,
     /// Returns of the last rotation closed: the next one's is reserved at once rather than grown.
     last_returns: usize,
+    /// A rotation's returns given back by the caller ([`Assembler::recycle`]).
+    spare: Vec<Return>,
+    /// The last closed rotation's column per return, for the next one to write into.
+    spare_columns: Vec<u16>,
 }
 
 impl Frames {
@@ -103,13 +111,19 @@ impl Frames {
         self.closed = Some(scan.key);
         self.follows_previous = ending == Ending::NextFrame;
         self.last_returns = scan.returns.len();
-        scan.close(ending, window)
+        scan.close(ending, window, &mut self.spare_columns)
     }
 
     /// The rotation of frame `key`, opened by this packet if it is the frame's first.
     fn current(&mut self, key: FrameKey, received: f64, window: &Window) -> &mut Scan {
         let (follows_previous, capacity) = (self.follows_previous, self.last_returns);
-        self.scan.get_or_insert_with(|| Scan::new(key, received, follows_previous, window, capacity))
+        let (spare, spare_columns) = (&mut self.spare, &mut self.spare_columns);
+        self.scan.get_or_insert_with(|| {
+            let mut return_columns = std::mem::take(spare_columns);
+            return_columns.clear();
+            return_columns.reserve(capacity);
+            Scan::new(key, received, follows_previous, window, reuse(spare, capacity), return_columns)
+        })
     }
 }
 
@@ -228,13 +242,21 @@ struct Scan {
 }
 
 impl Scan {
-    fn new(key: FrameKey, stamp: f64, follows_previous: bool, window: &Window, capacity: usize) -> Scan {
+    /// A rotation written into `returns` and `return_columns` (empty, with room reserved).
+    fn new(
+        key: FrameKey,
+        stamp: f64,
+        follows_previous: bool,
+        window: &Window,
+        returns: Vec<Return>,
+        return_columns: Vec<u16>,
+    ) -> Scan {
         Scan {
             key,
             stamp,
             follows_previous,
-            returns: Vec::with_capacity(capacity),
-            return_columns: Vec::with_capacity(capacity),
+            return_columns,
+            returns,
             column_ns: vec![0; window.columns_per_frame],
             received: vec![false; window.columns_per_frame],
             columns: 0,
@@ -282,8 +304,9 @@ impl Scan {
         Some(measurement_id)
     }
 
-    /// The rotation, or `None` when no valid column came.
-    fn close(mut self, ending: Ending, window: &Window) -> Option<Rotation> {
+    /// The rotation, or `None` when no valid column came; its per-return columns go back into
+    /// `columns_back` for the next rotation.
+    fn close(mut self, ending: Ending, window: &Window, columns_back: &mut Vec<u16>) -> Option<Rotation> {
         if self.columns == 0 {
             return None;
         }
@@ -295,18 +318,20 @@ impl Scan {
             + if trailing_are_gaps { coverage.after } else { 0 };
         let partial = (!leading_are_gaps && coverage.before > 0) || (!trailing_are_gaps && coverage.after > 0);
         let earliest_ns = self.earliest_ns;
-        for (point, &id) in self.returns.iter_mut().zip(&self.return_columns) {
+        let columns = std::mem::take(&mut self.return_columns);
+        for (point, &id) in self.returns.iter_mut().zip(&columns) {
             let column_ns = self.column_ns[usize::from(id)];
             point.time = (column_ns.saturating_sub(earliest_ns) as f64 * 1e-9) as f32;
         }
         let returns = if self.reordered {
             // Back into the window's order (stable: a column's returns keep theirs).
             let mut order: Vec<usize> = (0..self.returns.len()).collect();
-            order.sort_by_key(|&i| window.position(usize::from(self.return_columns[i])));
+            order.sort_by_key(|&i| window.position(usize::from(columns[i])));
             order.into_iter().map(|i| self.returns[i]).collect()
         } else {
             self.returns
         };
+        *columns_back = columns;
         Some(Rotation { returns, stamp: self.stamp, gaps, partial })
     }
 }

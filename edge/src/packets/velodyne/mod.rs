@@ -19,7 +19,7 @@ mod yaml;
 
 pub use calibration::{Calibration, CalibrationError, LaserCorrection, TwoPointCorrection};
 
-use super::{Assembler, PacketError, ReturnChoice, Rotation};
+use super::{Assembler, PacketError, Return, ReturnChoice, Rotation};
 use firing::PacketDecoder;
 use packet::{DataPacket, ReturnMode};
 use rotation::{Cutter, DecodedPacket};
@@ -206,6 +206,10 @@ impl Assembler for VelodyneAssembler {
 
     fn finish(&mut self) -> Option<Rotation> {
         self.cutter.finish()
+    }
+
+    fn recycle(&mut self, returns: Vec<Return>) {
+        self.cutter.spare = returns;
     }
 }
 

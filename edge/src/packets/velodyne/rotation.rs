@@ -5,7 +5,7 @@
 //! down" test, a rotation only ends on a drop of more than half a turn, so a reordered packet
 //! stays in its rotation; one arriving after its rotation was cut is dropped.
 
-use crate::packets::{Return, Rotation};
+use crate::packets::{Return, Rotation, reuse};
 
 /// Hundredths of a degree in a turn.
 const TURN: i32 = 36000;
@@ -78,14 +78,16 @@ impl Current {
         self.packets.iter().any(|placed| placed.packet.start == packet.start && placed.packet.azimuth == packet.azimuth)
     }
 
-    fn into_rotation(self, ended_at_cut: bool) -> Rotation {
+    /// The rotation, its returns written into `returns` (empty).
+    fn into_rotation(self, ended_at_cut: bool, returns: Vec<Return>) -> Rotation {
         let gaps = self.gaps();
         let partial = !(ended_at_cut && self.after_cut.is_some());
         let mut packets = self.packets;
         packets.sort_by(|a, b| a.packet.start.total_cmp(&b.packet.start));
         // Sized at once: collecting the packets' returns one by one grew and copied the rotation
         // a dozen times.
-        let mut returns = Vec::with_capacity(packets.iter().map(|placed| placed.packet.returns.len()).sum());
+        let mut returns = returns;
+        returns.reserve(packets.iter().map(|placed| placed.packet.returns.len()).sum());
         for placed in &packets {
             let offset = placed.packet.start - self.earliest_start;
             returns.extend(
@@ -129,11 +131,13 @@ pub(super) struct Cutter {
     current: Option<Current>,
     /// Set when the next rotation begins right after a cut.
     next_after_cut: Option<CutEnd>,
+    /// A rotation's returns given back by the caller ([`crate::packets::Assembler::recycle`]).
+    pub spare: Vec<Return>,
 }
 
 impl Cutter {
     pub fn new(cut: Option<u16>) -> Self {
-        Self { cut, current: None, next_after_cut: None }
+        Self { cut, current: None, next_after_cut: None, spare: Vec::new() }
     }
 
     /// Adds a packet; returns the rotation it completes, if any.
@@ -189,6 +193,7 @@ impl Cutter {
     }
 
     fn emit(&mut self, ended_at_cut: bool) -> Option<Rotation> {
-        self.current.take().map(|current| current.into_rotation(ended_at_cut))
+        let current = self.current.take()?;
+        Some(current.into_rotation(ended_at_cut, reuse(&mut self.spare, 0)))
     }
 }
