@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Writes the ROS 1 bag fixtures of edge/tests/recordings.rs with a real bag writer (rosbags).
+"""Writes the ROS 1 bag fixtures of edge/tests/integration/recordings.rs with a real bag writer (rosbags).
 
 No Rust crate writes ROS 1 bags, so the fixtures come from Python's `rosbags` package
 (`pip install rosbags`), which writes format 2.0 with uncompressed, bz2 and lz4 chunks. The

@@ -281,7 +281,7 @@ const KILL_AFTER_KEYFRAMES: usize = 40;
 /// Each session of the restarted robot is placed like every robot of this file
 /// ([`MAX_PLACEMENT_ERROR_M`], 1 deg). The kill lands wherever edge 2 is when its 40th keyframe is on
 /// disk, so the restarted session starts at a scan that varies from run to run, moving; the demo's
-/// restart test (`demo/tests/demo.rs`) judges a fixed restart against 5 cm / 0.2 deg.
+/// restart test (`demo/tests/integration/demo.rs`) judges a fixed restart against 5 cm / 0.2 deg.
 const MAX_SESSION_ERROR_M: f64 = MAX_PLACEMENT_ERROR_M;
 const MAX_SESSION_ERROR_DEG: f64 = 1.0;
 

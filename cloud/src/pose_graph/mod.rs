@@ -135,7 +135,7 @@ pub struct PoseGraphConfig {
     /// Kernel of loop edges. Default Cauchy with k = 3 (standard deviations of the loop's own
     /// noise): a loop the rest of the graph agrees with (r² ≈ 6, the mean of χ² with 6 degrees of
     /// freedom) keeps 60 % of its weight k² / (k² + r²), one it contradicts by 30 σ keeps 1 %. On
-    /// the synthetic ring with two false loops (cloud/tests/pose_graph.rs), k = 3 and 5 leave the
+    /// the synthetic ring with two false loops (cloud/tests/integration/pose_graph.rs), k = 3 and 5 leave the
     /// trajectory as without them; k = 1 (SC-A-LOAM's, whose loop noise is loose) weighs true loops
     /// 0.14 at the optimum, and took 3-4x the iterations to a worse trajectory.
     pub loop_kernel: Kernel,

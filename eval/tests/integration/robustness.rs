@@ -203,7 +203,7 @@ fn a_case_written_to_disk_reads_back_as_the_same_scans_and_truth() {
 #[test]
 fn a_simulated_case_from_rest_holds_so_the_truth_matches_the_odometry_frame() {
     // From the start of the route (at rest) our odometry is known to track the warehouse within
-    // centimetres (edge/tests/odometry_sim.rs): a case whose truth were off by a frame or a half
+    // centimetres (edge/tests/integration/odometry_sim.rs): a case whose truth were off by a frame or a half
     // sweep would not hold.
     let case = simulated(&SimCase { start_s: 0.0, scans: 120, ..SimCase::default() }).unwrap();
     let outcome = run_ours(&case, &HoldCriterion::default());
