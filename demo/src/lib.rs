@@ -34,7 +34,7 @@ use station::service::joint_input::joint_input;
 use station::service::merge_job::RobotSnapshot;
 use station::service::{Station, StationConfig, StationError};
 use tokio::sync::{mpsc, oneshot};
-use tracing::info;
+use tracing::{info, warn};
 
 /// What the demo runs.
 #[derive(Clone, Debug)]
@@ -255,8 +255,7 @@ type RobotSession = (u32, u64);
 pub async fn run(config: DemoConfig, interrupt: impl Future<Output = ()>) -> Result<DemoReport, DemoError> {
     let started = Instant::now();
     check_restart(&config)?;
-    let port = bus::free_port().map_err(|e| DemoError::Network(e.to_string()))?;
-    let station_session = open(&bus::Network::loopback_ports(&[port], &[])).await?;
+    let (port, station_session) = open_on_a_free_port().await?;
     let station = Station::start(station_session, config.station.clone()).await?;
     info!("station listening on {}", bus::endpoint(port));
     let (done_tx, mut done_rx) = mpsc::unbounded_channel();
@@ -376,6 +375,27 @@ async fn stop_edge(edge: EdgeTask) -> Result<NodeSummary, DemoError> {
 
 async fn open(network: &bus::Network) -> Result<zenoh::Session, DemoError> {
     network.open().await.map_err(|e| DemoError::Network(e.to_string()))
+}
+
+/// Times the station's session is tried on another port; see [`open_on_a_free_port`].
+const PORT_TRIES: usize = 5;
+
+/// The station's session, listening on a loopback port that was free when asked. Another process
+/// may take the port before the session binds it (an outgoing connection's ephemeral port, as
+/// tests running beside the demo make): then another port is tried.
+async fn open_on_a_free_port() -> Result<(u16, zenoh::Session), DemoError> {
+    let mut failed = None;
+    for _ in 0..PORT_TRIES {
+        let port = bus::free_port().map_err(|e| DemoError::Network(e.to_string()))?;
+        match open(&bus::Network::loopback_ports(&[port], &[])).await {
+            Ok(session) => return Ok((port, session)),
+            Err(e) => {
+                warn!("station: port {port} could not be listened on ({e}); trying another");
+                failed = Some(e);
+            }
+        }
+    }
+    Err(failed.unwrap_or_else(|| DemoError::Network("no port tried".into())))
 }
 
 /// What one run of an edge reads, and as which session.
