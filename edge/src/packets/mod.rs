@@ -94,9 +94,9 @@ pub trait Assembler {
     fn recycle(&mut self, returns: Vec<Return>);
 }
 
-/// A buffer for the next rotation's returns, room for `capacity` of them: the one given back if
-/// any, else a fresh one.
-pub(crate) fn reuse(spare: &mut Vec<Return>, capacity: usize) -> Vec<Return> {
+/// A buffer for the next rotation, room for `capacity` items: the spare one (emptied) if any,
+/// else a fresh one.
+pub(crate) fn reuse<T>(spare: &mut Vec<T>, capacity: usize) -> Vec<T> {
     let mut returns = std::mem::take(spare);
     returns.clear();
     returns.reserve(capacity);

@@ -119,10 +119,7 @@ impl Frames {
         let (follows_previous, capacity) = (self.follows_previous, self.last_returns);
         let (spare, spare_columns) = (&mut self.spare, &mut self.spare_columns);
         self.scan.get_or_insert_with(|| {
-            let mut return_columns = std::mem::take(spare_columns);
-            return_columns.clear();
-            return_columns.reserve(capacity);
-            Scan::new(key, received, follows_previous, window, reuse(spare, capacity), return_columns)
+            Scan::new(key, received, follows_previous, window, reuse(spare, capacity), reuse(spare_columns, capacity))
         })
     }
 }

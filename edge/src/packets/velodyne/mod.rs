@@ -209,7 +209,7 @@ impl Assembler for VelodyneAssembler {
     }
 
     fn recycle(&mut self, returns: Vec<Return>) {
-        self.cutter.spare = returns;
+        self.cutter.recycle(returns);
     }
 }
 

@@ -131,8 +131,8 @@ pub(super) struct Cutter {
     current: Option<Current>,
     /// Set when the next rotation begins right after a cut.
     next_after_cut: Option<CutEnd>,
-    /// A rotation's returns given back by the caller ([`crate::packets::Assembler::recycle`]).
-    pub spare: Vec<Return>,
+    /// A rotation's returns given back by the caller ([`Cutter::recycle`]).
+    spare: Vec<Return>,
 }
 
 impl Cutter {
@@ -190,6 +190,11 @@ impl Cutter {
     /// The rotation in progress, if it holds returns.
     pub fn finish(&mut self) -> Option<Rotation> {
         self.emit(false).filter(|rotation| !rotation.returns.is_empty())
+    }
+
+    /// Takes back a rotation's returns for the next rotation ([`crate::packets::Assembler::recycle`]).
+    pub fn recycle(&mut self, returns: Vec<Return>) {
+        self.spare = returns;
     }
 
     fn emit(&mut self, ended_at_cut: bool) -> Option<Rotation> {
